@@ -1,0 +1,5 @@
+import sys
+
+from fitstiff.cli import main
+
+sys.exit(main())
