@@ -1,0 +1,121 @@
+"""The model's view of one log: a :class:`Drive` (JAX pytree) of input arrays and rig scalars.
+
+A drive holds what the terms need from the data (time, measured displacement, measured
+pressures, standstill flags), the rig constants of that log (areas, effective chamber lengths,
+closing pressures) and the log's nuisance values (initial friction state, force offset). The
+measured force is *not* in the drive: the model predicts it.
+
+Each chamber has a static mode decided from the log:
+
+``measured``  its pressure is logged: the chamber force uses the logged pressure;
+``vented``    open to ambient (declared, or the unlogged side of a one-pressure log);
+``closed``    closed at the start with the supply pressure: modelled (polytropic law).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import equinox as eqx
+
+from fitstiff._jax import jnp
+from fitstiff.log import Log, Rig
+
+__all__ = ["Drive", "make_drive", "drive_from_log", "CHAMBER_MODES"]
+
+CHAMBER_MODES = ("measured", "vented", "closed")
+
+
+class Drive(eqx.Module):
+    """Inputs of one log for the model (SI, absolute pressures)."""
+
+    time: jnp.ndarray            # (n,) s; sample index when the log has no time
+    displacement: jnp.ndarray    # (n,) m, measured, relative to the start
+    pressure_a: jnp.ndarray      # (n,) Pa abs, 0 where not measured
+    pressure_b: jnp.ndarray
+    still: jnp.ndarray           # (n,) 1.0 while standing still
+    area_a: jnp.ndarray          # m^2 (nan where the model does not need it)
+    area_b: jnp.ndarray
+    l_a0: jnp.ndarray            # m, effective chamber lengths at the start
+    l_b0: jnp.ndarray
+    p_a0: jnp.ndarray            # Pa abs, chamber pressures at the start
+    p_b0: jnp.ndarray
+    p_amb: jnp.ndarray           # Pa abs
+    friction_state0: jnp.ndarray  # initial friction state, fraction of saturation in (-1, 1)
+    force_offset: jnp.ndarray    # N, added to the predicted force
+    modes: tuple[str, str] = eqx.field(static=True, default=("closed", "closed"))
+    has_time: bool = eqx.field(static=True, default=True)
+    name: str = eqx.field(static=True, default="")
+
+    def __len__(self) -> int:
+        return int(self.displacement.shape[0])
+
+    @property
+    def seal_pressure(self):
+        """Per-sample mean gauge pressure of the two chambers (Pa): the seal's normal load.
+
+        Measured chambers use the log, closed ones their closing pressure, vented ones 0.
+        """
+        def gauge(mode, measured, p0):
+            if mode == "measured":
+                return measured - self.p_amb
+            if mode == "closed":
+                return jnp.broadcast_to(p0 - self.p_amb, measured.shape)
+            return jnp.zeros_like(measured)
+
+        return 0.5 * (gauge(self.modes[0], self.pressure_a, self.p_a0)
+                      + gauge(self.modes[1], self.pressure_b, self.p_b0))
+
+
+def make_drive(*, displacement, time=None, rig: Rig | None = None, pressure_a=None,
+               pressure_b=None, vented=(), still=None, name: str = "",
+               needs_chamber: bool = False, friction_state0: float = 0.0,
+               force_offset: float = 0.0, what: str = "the chamber term") -> Drive:
+    """Build a drive from arrays (SI; pressures absolute).
+
+    ``needs_chamber``: require the rig values the chamber force needs (bore; and stroke,
+    start position and supply pressure for a closed chamber); a missing one is an
+    :class:`~fitstiff.errors.InputError` naming the sidecar key and the flag.
+    """
+    rig = rig or Rig()
+    x = np.asarray(displacement, dtype=float)
+    n = x.shape[0]
+    has_time = time is not None
+    t = np.asarray(time, dtype=float) if has_time else np.arange(n, dtype=float)
+    modes = []
+    for chamber, p in (("a", pressure_a), ("b", pressure_b)):
+        modes.append("measured" if p is not None else "vented" if chamber in vented
+                     else "closed")
+    nan = float("nan")
+    area_a = area_b = l_a0 = l_b0 = nan
+    p_amb = rig.ambient_pressure
+    supply = rig.supply_pressure
+    if needs_chamber:
+        area_a, area_b = rig.area_a, rig.area_b
+        if "closed" in modes:
+            stroke = rig.require("stroke", needed_for=f"{what} (closed chamber)")
+            x0 = rig.require("start_position", needed_for=f"{what} (closed chamber)")
+            supply = rig.require("supply_pressure", needed_for=f"{what} (closed chamber)")
+            l_a0 = x0 + (rig.dead_length_a or 0.0)
+            l_b0 = stroke - x0 + (rig.dead_length_b or 0.0)
+    p0 = (supply if supply is not None else 0.0) + p_amb
+    zeros = np.zeros(n)
+    return Drive(
+        time=jnp.asarray(t), displacement=jnp.asarray(x),
+        pressure_a=jnp.asarray(zeros if pressure_a is None else np.asarray(pressure_a, float)),
+        pressure_b=jnp.asarray(zeros if pressure_b is None else np.asarray(pressure_b, float)),
+        still=jnp.asarray(zeros if still is None else np.asarray(still, dtype=float)),
+        area_a=jnp.asarray(area_a), area_b=jnp.asarray(area_b),
+        l_a0=jnp.asarray(l_a0), l_b0=jnp.asarray(l_b0),
+        p_a0=jnp.asarray(p0), p_b0=jnp.asarray(p0), p_amb=jnp.asarray(p_amb),
+        friction_state0=jnp.asarray(float(friction_state0)),
+        force_offset=jnp.asarray(float(force_offset)),
+        modes=(modes[0], modes[1]), has_time=has_time, name=name)
+
+
+def drive_from_log(log: Log, *, needs_chamber: bool = False, still=None,
+                   what: str = "the chamber term") -> Drive:
+    """The drive of a :class:`~fitstiff.log.Log`."""
+    return make_drive(displacement=log.displacement, time=log.time, rig=log.rig,
+                      pressure_a=log.pressure_a, pressure_b=log.pressure_b,
+                      vented=log.vented, still=still, name=log.name,
+                      needs_chamber=needs_chamber, what=what)

@@ -1,0 +1,197 @@
+"""Composition: a model is a sum of terms, run as one compiled ``lax.scan`` over the samples.
+
+>>> from fitstiff.model import build_model
+>>> model = build_model("dahl+viscous")
+>>> model.spec
+'dahl+viscous'
+
+``Model.predict(drive)`` returns the predicted force (N) for every sample of a
+:class:`~fitstiff.drive.Drive`; ``Model.contributions(drive)`` the force of each force-giving
+term. Both are pure JAX: differentiable in every parameter, usable under ``jit`` and ``vmap``
+(over a batch of models built with :class:`~fitstiff.params.Parameterization`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import equinox as eqx
+
+from fitstiff._jax import jax, jnp
+from fitstiff.drive import Drive, drive_from_log
+from fitstiff.errors import InputError
+from fitstiff.log import Log
+from fitstiff.terms import TERMS, Modulation, Step, Term
+
+__all__ = ["Model", "build_model", "parse_spec", "model_for_logs"]
+
+_NEWTON_STEPS = 4
+
+
+def parse_spec(spec: str) -> list[tuple[str, str | None]]:
+    """``"chamber+maxwell_slip:4"`` -> ``[("chamber", None), ("maxwell_slip", "4")]``."""
+    if not isinstance(spec, str) or not spec.strip():
+        raise InputError(None, "model spec", f"found {spec!r}",
+                         "give terms joined by '+', e.g. 'chamber+dahl'")
+    out = []
+    for token in spec.replace(" ", "").split("+"):
+        name, _, arg = token.partition(":")
+        if name not in TERMS:
+            raise InputError(None, f"model spec '{spec}'", f"unknown term '{name}'",
+                             f"use terms from: {', '.join(TERMS)}")
+        if any(name == seen for seen, _ in out):
+            raise InputError(None, f"model spec '{spec}'", f"term '{name}' appears twice",
+                             "name each term once")
+        out.append((name, arg or None))
+    return out
+
+
+class Model(eqx.Module):
+    """An immutable sum of terms. Build it with :func:`build_model`."""
+
+    terms: tuple[Term, ...]
+
+    def __check_init__(self):
+        kinds = [t.kind for t in self.terms]
+        names = [t.name for t in self.terms]
+        spec = "+".join(names)
+        for t in self.terms:
+            if t.kind == "modifier" and t.targets not in kinds:
+                wanted = ("a friction base (dahl, lugre, maxwell_slip or coulomb)"
+                          if t.targets == "friction" else "the chamber term")
+                raise InputError(None, f"model spec '{spec}'",
+                                 f"'{t.name}' modifies {wanted} but the model has none",
+                                 f"add {wanted}")
+        if "lugre" in names and "stribeck" in names:
+            raise InputError(None, f"model spec '{spec}'",
+                             "'lugre' already contains the Stribeck curve (Fs, vs)",
+                             "drop 'stribeck'")
+        if not any(k in ("chamber", "friction", "force") for k in kinds):
+            raise InputError(None, f"model spec '{spec}'", "has no term that gives a force",
+                             "add chamber, a friction base or a force term")
+
+    # -- structure --------------------------------------------------------------------------
+    @property
+    def spec(self) -> str:
+        return "+".join(t.name for t in self.terms)
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(t.name for t in self.terms)
+
+    def with_terms(self, terms) -> Model:
+        return Model(tuple(terms))
+
+    def term(self, name: str) -> Term:
+        for t in self.terms:
+            if t.name == name:
+                return t
+        raise KeyError(name)
+
+    def has(self, name: str) -> bool:
+        return name in self.names
+
+    def of_kind(self, *kinds: str) -> list[Term]:
+        return [t for t in self.terms if t.kind in kinds]
+
+    @property
+    def force_names(self) -> tuple[str, ...]:
+        """Names of the terms whose forces :meth:`contributions` returns (in order)."""
+        return tuple(t.name for t in self.of_kind("chamber", "friction", "force"))
+
+    @property
+    def needs_chamber(self) -> bool:
+        """Whether drives need the rig values of the chamber force."""
+        return self.has("chamber")
+
+    # -- evaluation -------------------------------------------------------------------------
+    def steps(self, drive: Drive) -> Step:
+        """Per-sample scan inputs (after input terms such as the time delay)."""
+        x = drive.displacement
+        for term in self.of_kind("input"):
+            x = term.transform_input(drive, x)
+        t = drive.time
+        dt = jnp.diff(t, prepend=2 * t[0] - t[1])
+        dx = jnp.diff(x, prepend=x[0])
+        v = dx / dt
+        dv = jnp.diff(v, append=v[-1])
+        dt_mid = 0.5 * (dt + jnp.append(dt[1:], dt[-1]))
+        a = dv / dt_mid
+        return Step(t=t, dt=dt, x=x, dx=dx, v=v, a=a, p_a=drive.pressure_a,
+                    p_b=drive.pressure_b, still=drive.still)
+
+    def contributions(self, drive: Drive) -> jnp.ndarray:
+        """Force of each term in :attr:`force_names`, shape ``(n_samples, n_force_terms)``."""
+        modifiers = self.of_kind("modifier")
+        forcing = self.of_kind("chamber", "friction", "force")
+        series = self.of_kind("series")
+
+        def evaluate(states, s):
+            mod_states, force_states = states
+            mod = Modulation()
+            new_mod = []
+            for term, st in zip(modifiers, mod_states):
+                st, m = term.modulate(st, s, drive)
+                new_mod.append(st)
+                mod = mod.combine(m)
+            new_force, forces = [], []
+            for term, st in zip(forcing, force_states):
+                st, f = term.step(st, s, drive, mod)
+                new_force.append(st)
+                forces.append(f)
+            return (tuple(new_mod), tuple(new_force)), jnp.stack(forces)
+
+        def body(carry, s):
+            states, x_piston = carry
+            if not series:
+                new_states, forces = evaluate(states, s)
+                return (new_states, x_piston), forces
+            # x_piston = x_sensor - compliance * F: Newton on the piston increment
+            c = series[0].compliance
+
+            def at(dxp):
+                s_p = s._replace(x=x_piston + dxp, dx=dxp, v=dxp / s.dt)
+                return evaluate(states, s_p)
+
+            def total(dxp):
+                return jnp.sum(at(dxp)[1])
+
+            f_prev = jnp.sum(jax.lax.stop_gradient(total(0.0)))
+            dxp = s.x - c * f_prev - x_piston
+            for _ in range(_NEWTON_STEPS):
+                f, dfdx = jax.jvp(total, (dxp,), (jnp.ones_like(dxp),))
+                resid = x_piston + dxp + c * f - s.x
+                dxp = dxp - resid / (1.0 + c * dfdx)
+            new_states, forces = at(dxp)
+            return (new_states, x_piston + dxp), forces
+
+        init = (tuple(t.init(drive) for t in modifiers),
+                tuple(t.init(drive) for t in forcing))
+        steps = self.steps(drive)
+        _, forces = jax.lax.scan(body, (init, steps.x[0]), steps)
+        return forces
+
+    def predict(self, drive: Drive) -> jnp.ndarray:
+        """Predicted measured force (N) at every sample, including the drive's offset."""
+        return jnp.sum(self.contributions(drive), axis=1) + drive.force_offset
+
+
+def build_model(spec: str, *, drives: Sequence[Drive] = ()) -> Model:
+    """A model from a spec string such as ``"chamber+dahl"``, ``"chamber+maxwell_slip:4"``.
+
+    ``drives``: the data the model will see; terms whose structure depends on it use it (the
+    chamber fits ``n`` only if some chamber is closed; ``pressure_friction`` takes its reference
+    pressure from the logs).
+    """
+    return Model(tuple(TERMS[name].from_spec(arg, drives=drives)
+                       for name, arg in parse_spec(spec)))
+
+
+def model_for_logs(spec: str, logs: Sequence[Log], *, still=None) -> tuple[Model, list[Drive]]:
+    """The model of ``spec`` and one drive per log, checking the rig values it needs."""
+    names = [name for name, _ in parse_spec(spec)]
+    needs = "chamber" in names or "pressure_friction" in names
+    drives = [drive_from_log(log, needs_chamber=needs,
+                             still=None if still is None else still[i],
+                             what=f"model '{spec}'") for i, log in enumerate(logs)]
+    return build_model(spec, drives=drives), drives

@@ -1,0 +1,256 @@
+"""The transform layer: parameter metadata, bounds and bijections to an unconstrained space.
+
+Physics terms hold plain SI values in their fields; they know nothing about bounds. Each term
+*declares* its parameters as :class:`Param` entries (display unit, bounds, transform, default,
+null value), and :class:`Parameterization` maps a model to one flat unconstrained vector and
+back, so the optimiser and the sampler see the same coordinates.
+
+Transforms (``y`` unconstrained, ``x`` physical, SI):
+
+============ ================================================= ==========================
+name         x(y)                                              use
+============ ================================================= ==========================
+identity     ``y``                                             signed, unbounded
+log          ``lower + exp(y)``                                positive scales
+logit        ``lower + (upper - lower) * sigmoid(y)``          bounded (exponents, ratios)
+ordered      ``x_1 = lower + e^{y_1}, x_i = x_{i-1} + e^{y_i}`` increasing vectors
+============ ================================================= ==========================
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Iterable, Mapping
+
+import numpy as np
+
+from fitstiff._jax import jax, jnp
+from fitstiff.errors import InputError
+
+__all__ = ["Param", "Parameterization", "TRANSFORMS", "named_params"]
+
+TRANSFORMS = ("identity", "log", "logit", "ordered")
+
+
+@dataclasses.dataclass(frozen=True)
+class Param:
+    """Metadata of one (scalar or vector) physical parameter of a term.
+
+    Attributes:
+        field: attribute name on the term (SI value, or a 1-D array for vectors).
+        unit: display unit (``"N/mm"``); ``scale`` converts: ``SI = display * scale``.
+        lower, upper: bounds in SI (``-inf`` / ``inf`` for none).
+        transform: one of :data:`TRANSFORMS`; chosen from the bounds when ``None``.
+        null: the value at which the term has no effect (effects only), in SI.
+        doc: one line.
+        size: ``None`` for a scalar, else the vector length.
+    """
+
+    field: str
+    unit: str
+    scale: float
+    lower: float
+    upper: float
+    doc: str
+    transform: str | None = None
+    null: float | None = None
+    size: int | None = None
+
+    def __post_init__(self):
+        if self.transform is None:
+            lo, hi = math.isfinite(self.lower), math.isfinite(self.upper)
+            object.__setattr__(self, "transform",
+                               "logit" if lo and hi else "log" if lo else "identity")
+        if self.transform not in TRANSFORMS:
+            raise ValueError(f"unknown transform {self.transform!r} for {self.field}")
+        if self.transform == "identity" and (math.isfinite(self.lower)
+                                             or math.isfinite(self.upper)):
+            raise ValueError(f"{self.field}: identity transform cannot honour bounds")
+
+    @property
+    def length(self) -> int:
+        return 1 if self.size is None else self.size
+
+    def element_names(self, prefix: str) -> list[str]:
+        if self.size is None:
+            return [prefix]
+        return [f"{prefix}_{i + 1}" for i in range(self.size)]
+
+    # -- bijection, vectorised over the element axis ---------------------------------------
+    def forward(self, y):
+        """Unconstrained ``y`` (shape ``(length,)``) -> physical SI value(s)."""
+        lo, hi = self.lower, self.upper
+        if self.transform == "identity":
+            return y
+        if self.transform == "log":
+            return lo + jnp.exp(y)
+        if self.transform == "logit":
+            return lo + (hi - lo) * jax.nn.sigmoid(y)
+        return lo + jnp.cumsum(jnp.exp(y))  # ordered
+
+    def inverse(self, x):
+        """Physical SI value(s) -> unconstrained; values on a bound are nudged inside."""
+        x = jnp.asarray(x, dtype=float).reshape(self.length)
+        lo, hi = self.lower, self.upper
+        tiny = 1e-12
+        if self.transform == "identity":
+            return x
+        if self.transform == "log":
+            return jnp.log(jnp.maximum(x - lo, tiny * (1 + abs(lo))))
+        if self.transform == "logit":
+            f = jnp.clip((x - lo) / (hi - lo), 1e-9, 1 - 1e-9)
+            return jnp.log(f) - jnp.log1p(-f)
+        steps = jnp.diff(x, prepend=lo)
+        return jnp.log(jnp.maximum(steps, tiny))
+
+    def log_jacobian(self, y):
+        """``log |det dx/dy|`` (for densities defined in physical space)."""
+        if self.transform == "identity":
+            return jnp.zeros(())
+        if self.transform in ("log", "ordered"):
+            return jnp.sum(y)
+        lo, hi = self.lower, self.upper
+        return jnp.sum(math.log(hi - lo) + jax.nn.log_sigmoid(y) + jax.nn.log_sigmoid(-y))
+
+    def check(self, value, *, where: str) -> None:
+        """Raise an :class:`InputError` if ``value`` (SI) is outside the bounds."""
+        v = np.atleast_1d(np.asarray(value, dtype=float))
+        if not np.all(np.isfinite(v)) or np.any(v < self.lower) or np.any(v > self.upper):
+            lo = self.lower / self.scale
+            hi = self.upper / self.scale
+            raise InputError(where, f"parameter '{self.field}'",
+                             f"found {np.round(v / self.scale, 6).tolist()} {self.unit}",
+                             f"give a value within [{lo:g}, {hi:g}] {self.unit}")
+        if self.transform == "ordered" and np.any(np.diff(v) < 0):
+            raise InputError(where, f"parameter '{self.field}'",
+                             f"found {np.round(v / self.scale, 6).tolist()} {self.unit}",
+                             "give an increasing sequence")
+
+
+@dataclasses.dataclass(frozen=True)
+class _Entry:
+    name: str          # flat name, e.g. "sigma0" or "delta_1"
+    term_index: int
+    param: Param
+    element: int | None  # index into a vector field, None for scalars
+    offset: int        # position of the owning Param's first element in the flat vector
+
+
+class Parameterization:
+    """Flat unconstrained coordinates of a model's free parameters.
+
+    ``names`` lists the free scalar names in order (vector parameters expand to
+    ``k_1 ... k_N``; a name shared by two terms is qualified as ``term.field``). ``fixed``
+    names keep the model's current value.
+
+    >>> par = Parameterization(model, fixed=["n"])           # doctest: +SKIP
+    >>> y = par.to_unconstrained(model)                       # doctest: +SKIP
+    >>> model2 = par.to_model(y, model)                       # jit/vmap/grad friendly
+    """
+
+    def __init__(self, model, *, fixed: Iterable[str] = ()):
+        fixed = set(fixed)
+        groups = named_params(model)
+        all_names = [n for _, _, names in groups for n in names]
+        vector_bases = {_base(p, names) for _, p, names in groups if p.size}
+        unknown = fixed - set(all_names) - vector_bases
+        if unknown:
+            raise InputError(None, f"--fix {', '.join(sorted(unknown))}",
+                             "names no parameter of this model",
+                             f"use one of: {', '.join(all_names)}")
+        self._groups: list[tuple[int, Param, int]] = []  # free (term index, param, offset)
+        self.entries: list[_Entry] = []
+        offset = 0
+        for i, p, names in groups:
+            base = _base(p, names)
+            if base in fixed or all(n in fixed for n in names):
+                continue
+            if p.size and any(n in fixed for n in names):
+                raise InputError(None, f"--fix {', '.join(n for n in names if n in fixed)}",
+                                 f"fixes part of the vector parameter '{base}'",
+                                 f"fix all of {base} or none")
+            self._groups.append((i, p, offset))
+            for e, name in enumerate(names):
+                self.entries.append(_Entry(name, i, p, None if p.size is None else e, offset))
+            offset += p.length
+        self.size = offset
+
+    @property
+    def names(self) -> list[str]:
+        return [e.name for e in self.entries]
+
+    def units(self) -> dict[str, str]:
+        return {e.name: e.param.unit for e in self.entries}
+
+    def scales(self) -> np.ndarray:
+        return np.array([e.param.scale for e in self.entries])
+
+    # -- maps -------------------------------------------------------------------------------
+    def to_unconstrained(self, model) -> jnp.ndarray:
+        parts = [p.inverse(getattr(model.terms[i], p.field)) for i, p, _ in self._groups]
+        return jnp.concatenate(parts) if parts else jnp.zeros(0)
+
+    def to_model(self, y, model):
+        """The model with its free fields replaced by ``forward(y)`` (differentiable)."""
+        terms = list(model.terms)
+        for i, p, off in self._groups:
+            value = p.forward(y[off:off + p.length])
+            value = value[0] if p.size is None else value
+            terms[i] = dataclasses.replace(terms[i], **{p.field: value})
+        return model.with_terms(tuple(terms))
+
+    def log_jacobian(self, y):
+        total = jnp.zeros(())
+        for _, p, off in self._groups:
+            total = total + p.log_jacobian(y[off:off + p.length])
+        return total
+
+    def values(self, model) -> dict[str, float]:
+        """Free parameter values (SI) by flat name."""
+        out = {}
+        for e in self.entries:
+            v = np.asarray(getattr(model.terms[e.term_index], e.param.field), dtype=float)
+            out[e.name] = float(v if e.element is None else v[e.element])
+        return out
+
+    def physical(self, y) -> jnp.ndarray:
+        """Flat vector of SI values for unconstrained ``y`` (same order as :attr:`names`)."""
+        parts = [p.forward(y[off:off + p.length]) for _, p, off in self._groups]
+        return jnp.concatenate(parts) if parts else jnp.zeros(0)
+
+    def with_values(self, model, values: Mapping[str, float], *, where: str | None = None):
+        """Set parameters by flat name (SI); names may be fixed or free."""
+        terms = list(model.terms)
+        by_name = {n: (i, p, None if p.size is None else e)
+                   for i, p, names in named_params(model) for e, n in enumerate(names)}
+        for name, value in values.items():
+            if name not in by_name:
+                raise InputError(where, f"parameter '{name}'", "is not in this model",
+                                 f"use one of: {', '.join(by_name)}")
+            i, p, e = by_name[name]
+            if e is None:
+                new = float(value)
+            else:
+                new = np.array(getattr(terms[i], p.field), dtype=float)
+                new[e] = float(value)
+            p.check(new, where=where or name)
+            terms[i] = dataclasses.replace(terms[i], **{p.field: new})
+        return model.with_terms(tuple(terms))
+
+
+def named_params(model) -> list[tuple[int, Param, list[str]]]:
+    """``(term index, Param, flat element names)`` for every declared parameter of ``model``.
+
+    A field name used by two terms is qualified with the term name (``dahl.sigma0``).
+    """
+    count: dict[str, int] = {}
+    for term in model.terms:
+        for p in term.params():
+            count[p.field] = count.get(p.field, 0) + 1
+    return [(i, p, p.element_names(p.field if count[p.field] == 1 else f"{term.name}.{p.field}"))
+            for i, term in enumerate(model.terms) for p in term.params()]
+
+
+def _base(p: Param, names: list[str]) -> str:
+    return names[0].rsplit("_", 1)[0] if p.size else names[0]

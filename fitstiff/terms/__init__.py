@@ -1,0 +1,23 @@
+"""Model terms by canonical name (DESIGN §3). See :mod:`fitstiff.terms.base` for the protocol."""
+
+from fitstiff.terms.base import KINDS, Modulation, Step, Term
+from fitstiff.terms.chamber import Chamber
+from fitstiff.terms.forces import ForceDrift, Inertia, Viscous
+from fitstiff.terms.friction import Coulomb, Dahl, LuGre, MaxwellSlip
+from fitstiff.terms.measurement import RigCompliance, TimeDelay
+from fitstiff.terms.modifiers import (Asymmetry, DwellStiction, HeatTransfer, Leakage,
+                                      PressureFriction, Stribeck)
+
+__all__ = ["KINDS", "TERMS", "EFFECTS", "FRICTION_BASES", "Modulation", "Step", "Term"]
+
+#: every term class by its canonical name
+TERMS: dict[str, type[Term]] = {cls.name: cls for cls in (
+    Chamber, Dahl, LuGre, MaxwellSlip, Coulomb, Viscous, Stribeck, Asymmetry, PressureFriction,
+    DwellStiction, HeatTransfer, Leakage, Inertia, ForceDrift, TimeDelay, RigCompliance)}
+
+FRICTION_BASES = tuple(n for n, c in TERMS.items() if c.kind == "friction")
+
+#: the effects the diagnosis can add to a baseline (DESIGN §3 table)
+EFFECTS = ("viscous", "stribeck", "asymmetry", "pressure_friction", "dwell_stiction",
+           "heat_transfer", "leakage", "inertia", "force_drift", "time_delay", "rig_compliance",
+           "maxwell_slip")

@@ -1,0 +1,136 @@
+"""What every model term is: an immutable JAX module with physical parameters and a step.
+
+A model is a sum of terms (``chamber+dahl+viscous``). The composition
+(:mod:`fitstiff.model`) runs all terms together in one ``lax.scan`` over the samples of a
+:class:`~fitstiff.drive.Drive`. Terms come in five kinds:
+
+``chamber``   the gas spring; its step returns the chamber force.
+``friction``  a seal-friction base (Dahl, LuGre, Maxwell-slip, Coulomb); its step returns the
+              friction force and honours the level / slope factors of the modifiers.
+``force``     any other additive force (viscous, inertia, force drift).
+``modifier``  changes another term rather than adding a force: it returns a
+              :class:`Modulation` every step (friction level and slope factors for
+              Stribeck, asymmetry, pressure-dependent and dwell-dependent friction; heat and
+              leak rates for the chamber).
+``input``     transforms the measured displacement before the scan (time delay).
+``series``    a compliance between the displacement sensor and the piston (rig compliance);
+              the composition solves for the piston motion every step.
+
+Parameters live in the fields, in SI units; bounds, display units and transforms are declared
+by :meth:`Term.params` and applied by :mod:`fitstiff.params`, never inside the physics.
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar, NamedTuple
+
+import equinox as eqx
+
+from fitstiff._jax import jnp
+from fitstiff.params import Param
+
+__all__ = ["Modulation", "Step", "Term", "KINDS"]
+
+KINDS = ("chamber", "friction", "force", "modifier", "input", "series")
+
+
+class Step(NamedTuple):
+    """Per-sample inputs of one scan step (all scalars, SI).
+
+    ``dx`` is the displacement increment from the previous sample (0 for the first), ``v`` the
+    mean velocity over that increment, ``a`` the acceleration estimate, ``p_a``/``p_b`` the
+    measured absolute pressures (0 where the chamber is not measured), ``still`` 1.0 while the
+    piston stands still.
+    """
+
+    t: Any
+    dt: Any
+    x: Any
+    dx: Any
+    v: Any
+    a: Any
+    p_a: Any
+    p_b: Any
+    still: Any
+
+
+class Modulation(NamedTuple):
+    """What modifiers tell the other terms at one step. ``None`` means "no modifier"."""
+
+    level: Any = None       # friction level factor (multiplies Fc, Fs, W_i)
+    slope: Any = None       # friction slope factor (multiplies sigma0, k_i)
+    heat_rate: Any = None   # 1/s, gas-wall heat exchange rate (chamber)
+    leak_rate: Any = None   # 1/s, relaxation rate of the pressure difference (chamber)
+
+    def combine(self, other: Modulation) -> Modulation:
+        def mul(a, b):
+            return b if a is None else a if b is None else a * b
+
+        def add(a, b):
+            return b if a is None else a if b is None else a + b
+
+        return Modulation(mul(self.level, other.level), mul(self.slope, other.slope),
+                          add(self.heat_rate, other.heat_rate),
+                          add(self.leak_rate, other.leak_rate))
+
+    def level_or(self, one=1.0):
+        return one if self.level is None else self.level
+
+    def slope_or(self, one=1.0):
+        return one if self.slope is None else self.slope
+
+
+class Term(eqx.Module):
+    """Base class. Subclasses set ``name``, ``kind`` and implement what their kind needs."""
+
+    name: ClassVar[str] = ""
+    kind: ClassVar[str] = "force"
+    #: for modifiers: the kind of term they act on ("friction" or "chamber")
+    targets: ClassVar[str | None] = None
+    #: one line for --help and docs
+    summary: ClassVar[str] = ""
+
+    @classmethod
+    def from_spec(cls, arg: str | None, *, drives=()) -> Term:
+        """Build from the spec token argument (``maxwell_slip:4`` -> ``"4"``) and the drives
+        the model will see (for terms whose structure depends on the data)."""
+        if arg is not None:
+            from fitstiff.errors import InputError
+
+            raise InputError(None, f"model term '{cls.name}:{arg}'",
+                             f"'{cls.name}' takes no argument", f"write '{cls.name}'")
+        return cls()
+
+    def params(self) -> tuple[Param, ...]:
+        """Declared free parameters (field names on this module)."""
+        return ()
+
+    def init(self, drive):
+        """Scan state at the first sample (a pytree; ``()`` for stateless terms)."""
+        return ()
+
+    def step(self, state, s: Step, drive, mod: Modulation):
+        """One sample: ``(new_state, force_N)``. Forces are + toward the B cap."""
+        raise NotImplementedError
+
+    def modulate(self, state, s: Step, drive):
+        """Modifiers: ``(new_state, Modulation)``."""
+        raise NotImplementedError
+
+    def transform_input(self, drive, x):
+        """Input terms: the displacement the model should see, given the measured ``x``."""
+        raise NotImplementedError
+
+    # -- derived quantities, friction bases -------------------------------------------------
+    def presliding_slope(self):
+        """Slope (N/m) of the friction force right after a reversal."""
+        return jnp.nan
+
+    def breakaway(self):
+        """Largest friction force (N) the seal holds before gross sliding."""
+        return jnp.nan
+
+    def reference_level(self):
+        """Modifiers: friction level factor at the reference condition (low speed, reference
+        pressure, no dwell, direction-averaged)."""
+        return 1.0

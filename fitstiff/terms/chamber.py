@@ -1,0 +1,92 @@
+"""``chamber``: the closed-chamber polytropic gas spring (DESIGN §1.1).
+
+Each chamber follows the mode its drive gives it: a *closed* chamber is compressed with the
+polytropic exponent ``n`` (the exact law, step by step: ``p' = p (V/V')**n``), a *measured*
+chamber uses the logged pressure, a *vented* one stays at ambient. The force is
+``A_B (p_B - p_amb) - A_A (p_A - p_amb)`` (external force that holds the piston).
+
+Two modifiers act on closed chambers (see :mod:`fitstiff.terms.modifiers`):
+``heat_transfer`` relaxes the gas temperature toward the wall with a rate ``h`` after each
+polytropic step (``h = 0``: plain polytropic law; ``n = 1.4`` with ``h > 0``: between adiabatic
+and isothermal, rate dependent); ``leakage`` relaxes the pressure difference across the piston
+with a rate ``lambda`` while conserving ``p_A V_A + p_B V_B``.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+
+from fitstiff import gas_spring
+from fitstiff._jax import jnp
+from fitstiff.params import Param
+from fitstiff.terms.base import Modulation, Step, Term
+
+__all__ = ["Chamber"]
+
+
+class Chamber(Term):
+    name = "chamber"
+    kind = "chamber"
+    summary = "closed-chamber gas spring (measured pressures if logged, else polytropic, n fitted)"
+
+    n: float = 1.3
+    #: False when every chamber of every log is measured or vented: then n is not a parameter
+    closed: bool = eqx.field(static=True, default=True)
+
+    @classmethod
+    def from_spec(cls, arg, *, drives=()):
+        super().from_spec(arg)
+        closed = not drives or any("closed" in d.modes for d in drives)
+        return cls(closed=closed)
+
+    def params(self):
+        if not self.closed:
+            return ()
+        return (Param("n", "-", 1.0, 1.0, 1.67, "polytropic exponent (1 isothermal, 1.4 adiabatic)"),)
+
+    def init(self, drive):
+        one = jnp.ones(())
+        return (drive.p_a0 * one, drive.p_b0 * one, one, one)
+
+    def step(self, state, s: Step, drive, mod: Modulation):
+        p_a, p_b, th_a, th_b = state
+        x_prev = s.x - s.dx
+        closed_a, closed_b = (m == "closed" for m in drive.modes)
+        if closed_a or closed_b:
+            # exact polytropic step on the effective lengths (volumes / area)
+            r_a = (drive.l_a0 + x_prev) / (drive.l_a0 + s.x)
+            r_b = (drive.l_b0 - x_prev) / (drive.l_b0 - s.x)
+            p_a, th_a = p_a * r_a**self.n, th_a * r_a ** (self.n - 1)
+            p_b, th_b = p_b * r_b**self.n, th_b * r_b ** (self.n - 1)
+            if mod.heat_rate is not None:
+                decay = jnp.exp(-mod.heat_rate * s.dt)
+                new_a = 1 + (th_a - 1) * decay
+                new_b = 1 + (th_b - 1) * decay
+                p_a, p_b, th_a, th_b = p_a * new_a / th_a, p_b * new_b / th_b, new_a, new_b
+            if mod.leak_rate is not None and closed_a and closed_b:
+                v_a = drive.area_a * (drive.l_a0 + s.x)
+                v_b = drive.area_b * (drive.l_b0 - s.x)
+                p_eq = (p_a * v_a + p_b * v_b) / (v_a + v_b)
+                decay = jnp.exp(-mod.leak_rate * s.dt)
+                p_a, p_b = p_eq + (p_a - p_eq) * decay, p_eq + (p_b - p_eq) * decay
+        pa = self._pressure(drive.modes[0], p_a, s.p_a, drive.p_amb)
+        pb = self._pressure(drive.modes[1], p_b, s.p_b, drive.p_amb)
+        force = drive.area_b * (pb - drive.p_amb) - drive.area_a * (pa - drive.p_amb)
+        return (p_a, p_b, th_a, th_b), force
+
+    @staticmethod
+    def _pressure(mode, modelled, measured, p_amb):
+        return {"closed": modelled, "measured": measured, "vented": p_amb}[mode]
+
+    def stiffness(self, drive):
+        """Linearised stiffness (N/m) at the start of ``drive``; closed chambers only count."""
+        closed_a, closed_b = (m == "closed" for m in drive.modes)
+        k_a = self.n * drive.p_a0 * drive.area_a / drive.l_a0 if closed_a else 0.0
+        k_b = self.n * drive.p_b0 * drive.area_b / drive.l_b0 if closed_b else 0.0
+        return k_a + k_b
+
+    def exact_force(self, drive, u):
+        """Exact closed-chamber force at displacement ``u`` (both chambers closed)."""
+        return gas_spring.chamber_force(u, p_a0=drive.p_a0, p_b0=drive.p_b0, l_a0=drive.l_a0,
+                                        l_b0=drive.l_b0, area_a=drive.area_a,
+                                        area_b=drive.area_b, n=self.n, p_amb=drive.p_amb)

@@ -1,0 +1,55 @@
+"""Additive force effects (DESIGN §3): viscous friction, inertia, force-channel drift."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from fitstiff.params import Param
+from fitstiff.terms.base import Modulation, Step, Term
+
+__all__ = ["ForceDrift", "Inertia", "Viscous"]
+
+
+class Viscous(Term):
+    name = "viscous"
+    kind = "force"
+    summary = "viscous friction c v"
+
+    c: float = 50.0
+
+    def params(self):
+        return (Param("c", "N s/m", 1.0, 0.0, np.inf, "viscous coefficient", null=0.0),)
+
+    def step(self, state, s: Step, drive, mod: Modulation):
+        return state, self.c * s.v
+
+
+class Inertia(Term):
+    name = "inertia"
+    kind = "force"
+    summary = "m a of the moving mass"
+
+    mass: float = 1.0
+
+    def params(self):
+        return (Param("mass", "kg", 1.0, 0.0, np.inf, "moving mass", null=0.0),)
+
+    def step(self, state, s: Step, drive, mod: Modulation):
+        return state, self.mass * s.a
+
+
+class ForceDrift(Term):
+    name = "force_drift"
+    kind = "force"
+    summary = "slow linear drift of the force channel's offset"
+
+    drift: float = 0.0
+
+    def params(self):
+        return (Param("drift", "N/s", 1.0, -np.inf, np.inf, "offset drift rate", null=0.0),)
+
+    def init(self, drive):
+        return drive.time[0]
+
+    def step(self, t0, s: Step, drive, mod: Modulation):
+        return t0, self.drift * (s.t - t0)

@@ -1,0 +1,156 @@
+"""Effects that change another term instead of adding a force (DESIGN §3).
+
+Friction modifiers return level / slope factors for every friction base in the model;
+chamber modifiers return heat and leak rates for the ``chamber`` term. Every modifier has a
+*null* value of its parameters at which it changes nothing (factor 1, rate 0), so a model with
+the effect nests the model without it.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import numpy as np
+
+from fitstiff._jax import jnp
+from fitstiff.params import Param
+from fitstiff.terms.base import Modulation, Step, Term
+
+__all__ = ["Asymmetry", "DwellStiction", "HeatTransfer", "Leakage", "PressureFriction",
+           "Stribeck"]
+
+
+class Stribeck(Term):
+    name = "stribeck"
+    kind = "modifier"
+    targets = "friction"
+    summary = "friction level falls from Fs = ratio * Fc at rest to Fc with speed"
+
+    stribeck_ratio: float = 1.2
+    stribeck_vs: float = 2e-3
+
+    def params(self):
+        return (Param("stribeck_ratio", "-", 1.0, 1.0, 5.0, "Fs / Fc", null=1.0),
+                Param("stribeck_vs", "mm/s", 1e-3, 0.0, np.inf, "Stribeck velocity"))
+
+    def modulate(self, state, s: Step, drive):
+        level = 1.0 + (self.stribeck_ratio - 1.0) * jnp.exp(-((s.v / self.stribeck_vs) ** 2))
+        return state, Modulation(level=level)
+
+    def reference_level(self):
+        return self.stribeck_ratio
+
+
+class Asymmetry(Term):
+    name = "asymmetry"
+    kind = "modifier"
+    targets = "friction"
+    summary = "friction level (and slope) differ between the two directions"
+
+    level_asym: float = 0.0
+    slope_asym: float = 0.0
+
+    def params(self):
+        return (Param("level_asym", "-", 1.0, -0.9, 0.9,
+                      "level factor 1 + a toward B, 1 - a toward A", null=0.0),
+                Param("slope_asym", "-", 1.0, -0.9, 0.9,
+                      "slope factor 1 + b toward B, 1 - b toward A", null=0.0))
+
+    def init(self, drive):
+        return jnp.zeros(())
+
+    def modulate(self, direction, s: Step, drive):
+        direction = jnp.where(s.dx != 0, jnp.sign(s.dx), direction)
+        return direction, Modulation(level=1.0 + self.level_asym * direction,
+                                     slope=1.0 + self.slope_asym * direction)
+
+
+class PressureFriction(Term):
+    name = "pressure_friction"
+    kind = "modifier"
+    targets = "friction"
+    summary = "friction level rises with chamber pressure: exp(beta (p - p_ref))"
+
+    beta: float = 0.0
+    #: reference gauge pressure (Pa) at which the friction base's levels apply
+    p_ref: float = eqx.field(static=True, default=0.0)
+
+    @classmethod
+    def from_spec(cls, arg, *, drives=()):
+        super().from_spec(arg)
+        if not drives:
+            return cls()
+        mean = float(np.mean([float(jnp.mean(d.seal_pressure)) for d in drives]))
+        return cls(p_ref=round(mean / 1e4) * 1e4)  # 0.1 bar grid, a readable reference
+
+    def params(self):
+        return (Param("beta", "1/bar", 1e-5, -2e-5, 5e-5,
+                      "relative friction rise per bar of mean chamber pressure", null=0.0),)
+
+    def modulate(self, state, s: Step, drive):
+        p_seal = 0.5 * ((s.p_a if drive.modes[0] == "measured" else
+                         drive.p_a0 if drive.modes[0] == "closed" else drive.p_amb)
+                        + (s.p_b if drive.modes[1] == "measured" else
+                           drive.p_b0 if drive.modes[1] == "closed" else drive.p_amb))
+        return state, Modulation(level=jnp.exp(self.beta * (p_seal - drive.p_amb - self.p_ref)))
+
+
+class DwellStiction(Term):
+    name = "dwell_stiction"
+    kind = "modifier"
+    targets = "friction"
+    summary = "extra breakaway after a standstill, growing with its duration"
+
+    dwell_gain: float = 0.3
+    dwell_tau: float = 1.0
+    dwell_decay: float = 0.2e-3
+
+    def params(self):
+        return (Param("dwell_gain", "-", 1.0, 0.0, np.inf,
+                      "extra level after a long standstill (fraction of the level)", null=0.0),
+                Param("dwell_tau", "s", 1.0, 0.0, np.inf, "growth time of the extra level"),
+                Param("dwell_decay", "mm", 1e-3, 0.0, np.inf,
+                      "travel over which the extra level fades after motion resumes"))
+
+    def init(self, drive):
+        z = jnp.zeros(())
+        return (z, z + 1.0, z)   # dwell time, travel since motion resumed, was still
+
+    def modulate(self, state, s: Step, drive):
+        t_dwell, travel, was_still = state
+        t_dwell = jnp.where(s.still > 0, jnp.where(was_still > 0, t_dwell + s.dt, s.dt), t_dwell)
+        travel = jnp.where(s.still > 0, 0.0, travel + jnp.abs(s.dx))
+        extra = (self.dwell_gain * (1.0 - jnp.exp(-t_dwell / self.dwell_tau))
+                 * jnp.exp(-travel / self.dwell_decay))
+        return (t_dwell, travel, s.still), Modulation(level=1.0 + extra)
+
+
+class HeatTransfer(Term):
+    name = "heat_transfer"
+    kind = "modifier"
+    targets = "chamber"
+    summary = "gas-wall heat exchange: rate-dependent stiffness between adiabatic and isothermal"
+
+    heat_rate: float = 1.0
+
+    def params(self):
+        return (Param("heat_rate", "1/s", 1.0, 0.0, np.inf,
+                      "temperature relaxation rate toward the wall", null=0.0),)
+
+    def modulate(self, state, s: Step, drive):
+        return state, Modulation(heat_rate=self.heat_rate)
+
+
+class Leakage(Term):
+    name = "leakage"
+    kind = "modifier"
+    targets = "chamber"
+    summary = "the pressure difference across the piston relaxes (leak past the seal)"
+
+    leak_rate: float = 0.05
+
+    def params(self):
+        return (Param("leak_rate", "1/s", 1.0, 0.0, np.inf,
+                      "relaxation rate of the pressure difference", null=0.0),)
+
+    def modulate(self, state, s: Step, drive):
+        return state, Modulation(leak_rate=self.leak_rate)
