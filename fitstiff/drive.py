@@ -7,9 +7,14 @@ measured force is *not* in the drive: the model predicts it.
 
 Each chamber has a static mode decided from the log:
 
-``measured``  its pressure is logged: the chamber force uses the logged pressure;
-``vented``    open to ambient (declared, or the unlogged side of a one-pressure log);
-``closed``    closed at the start with the supply pressure: modelled (polytropic law).
+``closed``    closed at the start with the supply pressure (the rig gives ``supply_bar``):
+              modelled with the polytropic law. If its pressure is also logged, the log is an
+              *observation* the fit compares with the modelled pressure (``observed``), which
+              is what identifies ``n``.
+``measured``  its pressure is logged and the rig does not say it was closed (no
+              ``supply_bar``, e.g. a regulated supply): the chamber force uses the logged
+              pressure as an input;
+``vented``    open to ambient (declared, or the unlogged side of a one-pressure log).
 """
 
 from __future__ import annotations
@@ -43,6 +48,8 @@ class Drive(eqx.Module):
     friction_state0: jnp.ndarray  # initial friction state, fraction of saturation in (-1, 1)
     force_offset: jnp.ndarray    # N, added to the predicted force
     modes: tuple[str, str] = eqx.field(static=True, default=("closed", "closed"))
+    #: per chamber: the logged pressure is an observation of a closed (modelled) chamber
+    observed: tuple[bool, bool] = eqx.field(static=True, default=(False, False))
     has_time: bool = eqx.field(static=True, default=True)
     name: str = eqx.field(static=True, default="")
 
@@ -81,10 +88,16 @@ def make_drive(*, displacement, time=None, rig: Rig | None = None, pressure_a=No
     n = x.shape[0]
     has_time = time is not None
     t = np.asarray(time, dtype=float) if has_time else np.arange(n, dtype=float)
-    modes = []
+    closed_by_rig = rig.supply_pressure is not None
+    modes, observed = [], []
     for chamber, p in (("a", pressure_a), ("b", pressure_b)):
-        modes.append("measured" if p is not None else "vented" if chamber in vented
-                     else "closed")
+        if chamber in vented:
+            modes.append("vented")
+        elif p is not None and not closed_by_rig:
+            modes.append("measured")
+        else:
+            modes.append("closed")
+        observed.append(p is not None and modes[-1] == "closed")
     nan = float("nan")
     area_a = area_b = l_a0 = l_b0 = nan
     p_amb = rig.ambient_pressure
@@ -109,7 +122,8 @@ def make_drive(*, displacement, time=None, rig: Rig | None = None, pressure_a=No
         p_a0=jnp.asarray(p0), p_b0=jnp.asarray(p0), p_amb=jnp.asarray(p_amb),
         friction_state0=jnp.asarray(float(friction_state0)),
         force_offset=jnp.asarray(float(force_offset)),
-        modes=(modes[0], modes[1]), has_time=has_time, name=name)
+        modes=(modes[0], modes[1]), observed=(observed[0], observed[1]), has_time=has_time,
+        name=name)
 
 
 def drive_from_log(log: Log, *, needs_chamber: bool = False, still=None,

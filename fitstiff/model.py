@@ -14,6 +14,7 @@ term. Both are pure JAX: differentiable in every parameter, usable under ``jit``
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import NamedTuple
 
 import equinox as eqx
 
@@ -23,7 +24,7 @@ from fitstiff.errors import InputError
 from fitstiff.log import Log
 from fitstiff.terms import TERMS, Modulation, Step, Term
 
-__all__ = ["Model", "build_model", "parse_spec", "model_for_logs"]
+__all__ = ["Model", "Prediction", "build_model", "parse_spec", "model_for_logs"]
 
 _NEWTON_STEPS = 4
 
@@ -44,6 +45,15 @@ def parse_spec(spec: str) -> list[tuple[str, str | None]]:
                              "name each term once")
         out.append((name, arg or None))
     return out
+
+
+class Prediction(NamedTuple):
+    """Everything a model predicts for one drive (arrays over the samples)."""
+
+    force: jnp.ndarray          # (n,) N, total measured force incl. the drive's offset
+    contributions: jnp.ndarray  # (n, n_force_terms) N, see Model.force_names
+    pressure_a: jnp.ndarray     # (n,) Pa abs: modelled (closed), logged (measured) or ambient
+    pressure_b: jnp.ndarray
 
 
 class Model(eqx.Module):
@@ -120,11 +130,12 @@ class Model(eqx.Module):
         return Step(t=t, dt=dt, x=x, dx=dx, v=v, a=a, p_a=drive.pressure_a,
                     p_b=drive.pressure_b, still=drive.still)
 
-    def contributions(self, drive: Drive) -> jnp.ndarray:
-        """Force of each term in :attr:`force_names`, shape ``(n_samples, n_force_terms)``."""
+    def run(self, drive: Drive) -> Prediction:
+        """Run the scan: total force, per-term forces and the chamber pressures."""
         modifiers = self.of_kind("modifier")
         forcing = self.of_kind("chamber", "friction", "force")
         series = self.of_kind("series")
+        chamber = next((t for t in forcing if t.kind == "chamber"), None)
 
         def evaluate(states, s):
             mod_states, force_states = states
@@ -139,13 +150,17 @@ class Model(eqx.Module):
                 st, f = term.step(st, s, drive, mod)
                 new_force.append(st)
                 forces.append(f)
-            return (tuple(new_mod), tuple(new_force)), jnp.stack(forces)
+            if chamber is None:
+                p = (drive.p_amb, drive.p_amb)
+            else:
+                p = chamber.pressures(new_force[forcing.index(chamber)], s, drive)
+            return (tuple(new_mod), tuple(new_force)), (jnp.stack(forces), *p)
 
         def body(carry, s):
             states, x_piston = carry
             if not series:
-                new_states, forces = evaluate(states, s)
-                return (new_states, x_piston), forces
+                new_states, out = evaluate(states, s)
+                return (new_states, x_piston), out
             # x_piston = x_sensor - compliance * F: Newton on the piston increment
             c = series[0].compliance
 
@@ -154,26 +169,31 @@ class Model(eqx.Module):
                 return evaluate(states, s_p)
 
             def total(dxp):
-                return jnp.sum(at(dxp)[1])
+                return jnp.sum(at(dxp)[1][0])
 
-            f_prev = jnp.sum(jax.lax.stop_gradient(total(0.0)))
-            dxp = s.x - c * f_prev - x_piston
+            dxp = s.x - c * jax.lax.stop_gradient(total(0.0)) - x_piston
             for _ in range(_NEWTON_STEPS):
                 f, dfdx = jax.jvp(total, (dxp,), (jnp.ones_like(dxp),))
-                resid = x_piston + dxp + c * f - s.x
-                dxp = dxp - resid / (1.0 + c * dfdx)
-            new_states, forces = at(dxp)
-            return (new_states, x_piston + dxp), forces
+                dxp = dxp - (x_piston + dxp + c * f - s.x) / (1.0 + c * dfdx)
+            new_states, out = at(dxp)
+            return (new_states, x_piston + dxp), out
 
         init = (tuple(t.init(drive) for t in modifiers),
                 tuple(t.init(drive) for t in forcing))
         steps = self.steps(drive)
-        _, forces = jax.lax.scan(body, (init, steps.x[0]), steps)
-        return forces
+        _, (forces, p_a, p_b) = jax.lax.scan(body, (init, steps.x[0]), steps)
+        n = steps.x.shape[0]
+        return Prediction(force=jnp.sum(forces, axis=1) + drive.force_offset,
+                          contributions=forces, pressure_a=jnp.broadcast_to(p_a, (n,)),
+                          pressure_b=jnp.broadcast_to(p_b, (n,)))
+
+    def contributions(self, drive: Drive) -> jnp.ndarray:
+        """Force of each term in :attr:`force_names`, shape ``(n_samples, n_force_terms)``."""
+        return self.run(drive).contributions
 
     def predict(self, drive: Drive) -> jnp.ndarray:
         """Predicted measured force (N) at every sample, including the drive's offset."""
-        return jnp.sum(self.contributions(drive), axis=1) + drive.force_offset
+        return self.run(drive).force
 
 
 def build_model(spec: str, *, drives: Sequence[Drive] = ()) -> Model:

@@ -69,14 +69,17 @@ class Chamber(Term):
                 p_eq = (p_a * v_a + p_b * v_b) / (v_a + v_b)
                 decay = jnp.exp(-mod.leak_rate * s.dt)
                 p_a, p_b = p_eq + (p_a - p_eq) * decay, p_eq + (p_b - p_eq) * decay
-        pa = self._pressure(drive.modes[0], p_a, s.p_a, drive.p_amb)
-        pb = self._pressure(drive.modes[1], p_b, s.p_b, drive.p_amb)
-        force = drive.area_b * (pb - drive.p_amb) - drive.area_a * (pa - drive.p_amb)
-        return (p_a, p_b, th_a, th_b), force
+        state = (p_a, p_b, th_a, th_b)
+        pa, pb = self.pressures(state, s, drive)
+        return state, drive.area_b * (pb - drive.p_amb) - drive.area_a * (pa - drive.p_amb)
 
     @staticmethod
-    def _pressure(mode, modelled, measured, p_amb):
-        return {"closed": modelled, "measured": measured, "vented": p_amb}[mode]
+    def pressures(state, s: Step, drive):
+        """Absolute chamber pressures at this step: modelled, logged or ambient by mode."""
+        def pick(mode, modelled, measured):
+            return {"closed": modelled, "measured": measured, "vented": drive.p_amb}[mode]
+
+        return (pick(drive.modes[0], state[0], s.p_a), pick(drive.modes[1], state[1], s.p_b))
 
     def stiffness(self, drive):
         """Linearised stiffness (N/m) at the start of ``drive``; closed chambers only count."""
