@@ -1,0 +1,65 @@
+"""Command-line options shared by the subcommands that read logs or write results.
+
+A subcommand's ``add_parser`` calls :func:`add_log_arguments` (and :func:`add_out_argument` if
+it writes); its ``func`` calls :func:`logs_from_args`::
+
+    def add_parser(subparsers):
+        parser = subparsers.add_parser("inspect", help="...")
+        add_log_arguments(parser)
+        parser.set_defaults(func=run)
+
+    def run(args):
+        logs = logs_from_args(args)
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from fitstiff.columns import CHAMBERS, ENTRY_FORM, bundled_formats
+from fitstiff.loading import load_logs
+from fitstiff.log import RIG_KEYS, Log
+
+__all__ = ["add_log_arguments", "add_out_argument", "logs_from_args"]
+
+
+def add_log_arguments(parser: argparse.ArgumentParser) -> None:
+    """``LOG...`` plus the options that say how to read them and override rig metadata."""
+    parser.add_argument("logs", nargs="+", metavar="LOG",
+                        help="CSV log files (rig metadata from <stem>.json beside each)")
+    reading = parser.add_argument_group("reading foreign files")
+    reading.add_argument("--columns", nargs="+", metavar="ENTRY",
+                         help=f"column mapping, one {ENTRY_FORM} per quantity (time, "
+                              "displacement, force, p_a, p_b); put the LOG files first")
+    reading.add_argument("--format", metavar="FILE|NAME",
+                         help="format JSON file (column mapping, header, delimiter, vented "
+                              "chambers, rig defaults) or a bundled format: "
+                              + ", ".join(bundled_formats()))
+    reading.add_argument("--no-header", action="store_true", default=None,
+                         help="the files have no header row (map the columns by number)")
+    reading.add_argument("--delimiter", metavar="D",
+                         help="one character or comma, semicolon, tab, whitespace "
+                              "(default: detected from the first line)")
+    rig = parser.add_argument_group("rig metadata (overrides the sidecar JSON and --format)")
+    for key in RIG_KEYS:
+        rig.add_argument(key.flag, dest=key.key, type=float, metavar="X", help=key.help)
+    rig.add_argument("--vented", action="append", choices=CHAMBERS,
+                     help="a chamber open to ambient (repeat for both)")
+
+
+def add_out_argument(parser: argparse.ArgumentParser, *, default: str | None = None) -> None:
+    """``--out DIR`` (required unless ``default`` is given)."""
+    parser.add_argument("--out", metavar="DIR", type=Path, default=default,
+                        required=default is None,
+                        help="output directory (written atomically, with a manifest.json)")
+
+
+def logs_from_args(args: argparse.Namespace) -> list[Log]:
+    """Load the logs named by the options of :func:`add_log_arguments`."""
+    overrides: dict[str, object] = {k.key: getattr(args, k.key) for k in RIG_KEYS
+                                    if getattr(args, k.key) is not None}
+    if args.vented:
+        overrides["vented"] = sorted(set(args.vented))
+    return load_logs(args.logs, columns=args.columns, no_header=args.no_header,
+                     delimiter=args.delimiter, rig_overrides=overrides, fmt=args.format)
