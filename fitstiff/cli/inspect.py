@@ -1,0 +1,72 @@
+"""``fitstiff inspect LOGS...``: what is in each log, before fitting anything.
+
+A thin layer over :func:`fitstiff.inspection.inspect_log` and
+:func:`fitstiff.segmentation.segment`: readable text per log, or ``--json`` (one object
+``{"logs": [summary, ...]}``); ``--out DIR`` also writes it as ``inspect.json`` with a
+manifest.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+from fitstiff.cli._common import add_log_arguments, logs_from_args
+from fitstiff.inspection import format_summary, inspect_log
+from fitstiff.output import OutputDir, to_jsonable
+from fitstiff.segmentation import DEFAULT_MIN_PAUSE, DEFAULT_PRESLIDING_RANGE, segment
+
+__all__ = ["add_parser", "run"]
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    """Register ``fitstiff inspect``."""
+    parser = subparsers.add_parser(
+        "inspect",
+        help="summarise logs: sampling, ranges, reversals, loops, pauses, regions, metadata",
+        description=(
+            "Per log: samples, duration, sample rate and jitter, displacement / force / "
+            "pressure ranges (mm, N, bar gauge), the segmentation (reversals, loops, pauses, "
+            "share of samples per region and speed band), which rig metadata is present or "
+            "missing, and what the loader assumed."),
+    )
+    add_log_arguments(parser)
+    seg = parser.add_argument_group("segmentation")
+    seg.add_argument("--threshold-mm", type=float, metavar="H",
+                     help="hysteresis threshold for direction reversals (default: 10 x the "
+                          "estimated displacement noise, at least 4 x the sensor resolution "
+                          "and 0.001 mm)")
+    seg.add_argument("--presliding-range-mm", type=float, metavar="D",
+                     default=DEFAULT_PRESLIDING_RANGE * 1e3,
+                     help="travel after a reversal or pause counted as presliding / dwell "
+                          f"(default {DEFAULT_PRESLIDING_RANGE * 1e3:g})")
+    seg.add_argument("--min-pause-s", type=float, metavar="T", default=DEFAULT_MIN_PAUSE,
+                     help=f"shortest standstill reported as a pause (default {DEFAULT_MIN_PAUSE:g})")
+    parser.add_argument("--json", action="store_true", help="print JSON instead of text")
+    parser.add_argument("--out", metavar="DIR",
+                        help="also write inspect.json and manifest.json to DIR")
+    parser.set_defaults(func=run)
+    return parser
+
+
+def run(args: argparse.Namespace) -> int:
+    """Load, segment and summarise every log; print text or JSON; optionally write it."""
+    logs = logs_from_args(args)
+    options = {"presliding_range": args.presliding_range_mm * 1e-3,
+               "min_pause": args.min_pause_s}
+    if args.threshold_mm is not None:
+        options["threshold"] = args.threshold_mm * 1e-3
+    summaries = [inspect_log(log, segmentation=segment(log, **options)) for log in logs]
+    document = {"logs": summaries}
+    if args.out:
+        inputs = [log.path for log in logs if log.path is not None]
+        inputs += [log.source["sidecar"] for log in logs if log.source.get("sidecar")]
+        out = OutputDir(args.out, inputs=inputs,
+                        options={k: v for k, v in vars(args).items() if k != "func"})
+        out.write_json("inspect.json", document)
+        out.finish()
+    if args.json:
+        print(json.dumps(to_jsonable(document), indent=2, allow_nan=False))
+    else:
+        print("\n\n".join(format_summary(summary) for summary in summaries))
+    return 0
