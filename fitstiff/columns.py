@@ -68,6 +68,7 @@ from pathlib import Path
 from typing import Any
 
 from fitstiff.errors import InputError
+from fitstiff.log import Rig
 from fitstiff.units import Kind, UnitSpec, parse_unit
 
 __all__ = [
@@ -233,13 +234,15 @@ class Format:
         if not isinstance(rig, Mapping):
             raise InputError(source, "key 'rig'", f"found {rig!r}",
                              'give an object of rig metadata, e.g. {"bore_mm": 25}')
+        rig = {k: v for k, v in rig.items() if not k.startswith("_")}
+        Rig.from_mapping(rig, source=source)  # names a bad key or value in the format file
         delimiter = values.get("delimiter")
         vented = values.get("vented")
         return cls(columns=parse_columns(columns, where=source), no_header=no_header,
                    delimiter=None if delimiter is None else parse_delimiter(delimiter,
                                                                             where=source),
                    vented=None if vented is None else parse_vented(vented, where=source),
-                   rig={k: v for k, v in rig.items() if not k.startswith("_")}, source=source)
+                   rig=rig, source=source)
 
 
 def bundled_formats() -> list[str]:
@@ -291,7 +294,7 @@ def _number(text: str, *, where: str | None, what: str) -> float:
         value = math.nan
     if not math.isfinite(value) or value == 0:
         raise InputError(where, what, f"scale '{text}' is not a finite non-zero number",
-                         "write :scale=K with a number K, e.g. :scale=9.81")
+                         f"K must be a finite non-zero number; write it as {ENTRY_FORM}")
     return value
 
 

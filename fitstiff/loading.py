@@ -117,26 +117,23 @@ def _layout(*, columns: ColumnEntries | None, no_header: bool | None, delimiter:
     )
 
 
-def _rig(path: Path, layout: Format, overrides: dict[str, object]
+def _rig(path: Path, layout: Format, overrides: Mapping[str, object]
          ) -> tuple[Rig, frozenset[str], Path | None]:
     """Rig metadata and vented chambers: format ``rig`` < sidecar < overrides."""
     sidecar = path.with_suffix(".json")
-    sidecar_values = read_json_object(sidecar) if sidecar.is_file() else {}
-    layers = [(dict(layout.rig), layout.vented, layout.source)]
-    for values, source in ((sidecar_values, str(sidecar)), (overrides, _OVERRIDE_SOURCE)):
-        values = {k: v for k, v in values.items() if not k.startswith("_")}
-        vented = values.pop("vented", None)
-        layers.append((values, None if vented is None else parse_vented(vented, where=source),
-                       source))
-    merged: dict[str, object] = {}
-    vented_chambers: frozenset[str] = frozenset()
-    for values, vented, source in layers:
+    has_sidecar = sidecar.is_file()
+    rig_values = dict(layout.rig)
+    vented = layout.vented or frozenset()
+    for layer, source in ((read_json_object(sidecar) if has_sidecar else {}, str(sidecar)),
+                          (overrides, _OVERRIDE_SOURCE)):
+        values = {k: v for k, v in layer.items() if not k.startswith("_") and v is not None}
+        if "vented" in values:
+            vented = parse_vented(values.pop("vented"), where=source)
         Rig.from_mapping(values, source=source)  # a bad key or value names its own layer
-        merged.update({k: v for k, v in values.items() if v is not None})
-        vented_chambers = vented_chambers if vented is None else vented
+        rig_values.update(values)
     # the sidecar is where a missing value belongs, so later messages name it
-    rig = Rig.from_mapping(merged, source=str(sidecar))
-    return rig, vented_chambers, sidecar if sidecar.is_file() else None
+    rig = Rig.from_mapping(rig_values, source=str(sidecar))
+    return rig, vented, sidecar if has_sidecar else None
 
 
 # ------------------------------------------------------------------------------------- text
@@ -195,7 +192,7 @@ def _lines(raw: bytes, where: str) -> list[str]:
 
 
 def _show(delimiter: str) -> str:
-    return {"\t": "tab", " ": WHITESPACE}.get(delimiter, f"'{delimiter}'")
+    return {"\t": "tab", " ": WHITESPACE, WHITESPACE: WHITESPACE}.get(delimiter, f"'{delimiter}'")
 
 
 def _split(lines: list[str], delimiter: str, *, where: str, first_line: int) -> list[list[str]]:
@@ -230,7 +227,8 @@ def _table(raw: bytes, *, where: str, delimiter: str | None, header: bool) -> _T
             raise InputError(where, "line 1", f"looks like data, not a header (found "
                              f"{', '.join(names[:3])} ...)",
                              "pass --no-header with a column mapping (--columns or --format), "
-                             f"or add a header row of names like {', '.join(EXAMPLE_NAMES.values())}")
+                             "or add a header row of names like "
+                             + ", ".join(EXAMPLE_NAMES.values()))
         lines, first_line = lines[1:], 2
         if not lines:
             raise InputError(where, "file", "has a header row but no data rows",
