@@ -52,7 +52,9 @@ rod side, B, is vented. The load cell reads about ``+p * A`` at rest, while our 
 (external force minus chamber force) must have the sign of the velocity during gross sliding;
 it does (about 98 % of sliding samples in every file) only when the position channel is
 flipped too: the laser position grows as chamber A shrinks. The reasoning and numbers are in
-the file's ``_comment``.
+the file's ``_comment``. Read them with::
+
+    fitstiff inspect shared/realdata/pneumatic-seal-friction/*.csv --format zillen_oring
 """
 
 from __future__ import annotations

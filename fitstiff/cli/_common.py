@@ -30,8 +30,8 @@ def add_log_arguments(parser: argparse.ArgumentParser) -> None:
                         help="CSV log files (rig metadata from <stem>.json beside each)")
     reading = parser.add_argument_group("reading foreign files")
     reading.add_argument("--columns", nargs="+", metavar="ENTRY",
-                         help=f"column mapping, one {ENTRY_FORM} per quantity (time, "
-                              "displacement, force, p_a, p_b); put the LOG files first")
+                         help="column mapping, one entry per quantity (time, displacement, "
+                              f"force, p_a, p_b): {ENTRY_FORM}; put the LOG files first")
     reading.add_argument("--format", metavar="FILE|NAME",
                          help="format JSON file (column mapping, header, delimiter, vented "
                               "chambers, rig defaults) or a bundled format: "
@@ -43,7 +43,8 @@ def add_log_arguments(parser: argparse.ArgumentParser) -> None:
                               "(default: detected from the first line)")
     rig = parser.add_argument_group("rig metadata (overrides the sidecar JSON and --format)")
     for key in RIG_KEYS:
-        rig.add_argument(key.flag, dest=key.key, type=float, metavar="X", help=key.help)
+        unit = key.key.rsplit("_", 1)[1].upper()
+        rig.add_argument(key.flag, dest=key.key, type=float, metavar=unit, help=key.help)
     rig.add_argument("--vented", action="append", choices=CHAMBERS,
                      help="a chamber open to ambient (repeat for both)")
 
