@@ -1,0 +1,359 @@
+"""Physics terms: closed forms, limits, memory, dissipation, gradients, vmap, each effect."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from conftest import polyline, triangle
+from scipy.integrate import solve_ivp
+
+from fitstiff import gas_spring
+from fitstiff._jax import jax, jnp
+from fitstiff.drive import make_drive
+from fitstiff.errors import InputError
+from fitstiff.model import build_model, parse_spec
+from fitstiff.params import Parameterization
+from fitstiff.terms import EFFECTS, TERMS
+
+
+def run(spec, t, x, *, values=None, rig=None, **drive_kw):
+    needs = "chamber" in spec or "pressure_friction" in spec
+    drive = make_drive(displacement=x, time=t, rig=rig, needs_chamber=needs, **drive_kw)
+    model = build_model(spec, drives=[drive])
+    if values:
+        model = Parameterization(model).with_values(model, values)
+    return model, drive, model.run(drive)
+
+
+# -- Dahl ------------------------------------------------------------------------------------
+def dahl_closed_form(x, sigma0, fc):
+    """Exact Dahl (alpha = 1) along the monotone segments of a polyline, from F = 0 at x[0]."""
+    F = np.zeros_like(x)
+    f_rev, x_rev, direction = 0.0, x[0], 0.0
+    for i in range(1, len(x)):
+        d = np.sign(x[i] - x[i - 1])
+        if d != 0 and d != direction:         # reversal at the previous sample
+            f_rev, x_rev, direction = F[i - 1], x[i - 1], d
+        F[i] = direction * fc + (f_rev - direction * fc) * np.exp(
+            -sigma0 * abs(x[i] - x_rev) / fc) if direction else F[i - 1]
+    return F
+
+
+def test_dahl_matches_closed_form_loop():
+    t, x = triangle([0.1e-3, 0.3e-3, 1e-3])
+    _, _, pred = run("dahl", t, x, values={"sigma0": 40e3, "Fc": 18.0})
+    exact = dahl_closed_form(x, 40e3, 18.0)
+    scale = np.max(np.abs(exact))
+    np.testing.assert_allclose(np.asarray(pred.force), exact, rtol=0, atol=1e-9 * scale)
+
+
+@pytest.mark.parametrize("alpha", [0.5, 1.0, 2.0])
+def test_dahl_general_alpha_matches_ode(alpha):
+    t, x = polyline([0.0, 0.8e-3, -0.5e-3])
+    _, _, pred = run("dahl:alpha", t, x, values={"sigma0": 40e3, "Fc": 18.0, "alpha": alpha})
+
+    def rhs(xx, f, s):
+        y = 1 - f * s / 18.0
+        return 40e3 * np.abs(y) ** alpha * np.sign(y)
+
+    f = 0.0
+    ref = [0.0]
+    i_turn = int(np.argmax(x))
+    for seg, s in ((slice(0, i_turn + 1), 1.0), (slice(i_turn, len(x)), -1.0)):
+        xs = x[seg]
+        sol = solve_ivp(rhs, (xs[0], xs[-1]), [f], t_eval=xs, args=(s,), rtol=1e-11,
+                        atol=1e-12, method="LSODA")
+        ref += list(sol.y[0][1:])
+        f = sol.y[0][-1]
+    np.testing.assert_allclose(np.asarray(pred.force), np.array(ref), atol=1e-5 * 18)
+
+
+# -- LuGre -----------------------------------------------------------------------------------
+def test_lugre_at_low_speed_approaches_dahl_with_fc_equal_g():
+    t, x = triangle([0.2e-3, 0.6e-3], rate=1e-6, fs=1.0)   # 1 um/s, far below vs
+    lugre = {"sigma0": 40e3, "sigma1": 200.0, "Fc": 15.0, "Fs": 18.0, "vs": 2e-3}
+    _, _, pl = run("lugre", t, x, values=lugre)
+    _, _, pd = run("dahl", t, x, values={"sigma0": 40e3, "Fc": 18.0})
+    g = 15.0 + 3.0 * np.exp(-((1e-6 / 2e-3) ** 2))
+    np.testing.assert_allclose(np.asarray(pl.force), np.asarray(pd.force), atol=1e-3 * g)
+
+
+@pytest.mark.parametrize("fs", [100.0, 10_000.0])
+def test_lugre_stiff_is_stable_and_accurate(fs):
+    """sigma0 = 1e6 N/m at 100 Hz and 10 kHz: no blow-up, and equal to a stiff ODE solver."""
+    pars = {"sigma0": 1e6, "sigma1": 1e3, "Fc": 15.0, "Fs": 18.0, "vs": 2e-3}
+    t, x = polyline([0.0, 0.05e-3, -0.05e-3, 0.2e-3], rate=2e-3, fs=fs)
+    _, _, pred = run("lugre", t, x, values=pars)
+    f = np.asarray(pred.force)
+    assert np.all(np.isfinite(f))
+    v_of_t = lambda tt: np.interp(tt, t[1:], np.diff(x) / np.diff(t))  # noqa: E731
+    g = lambda v: 15.0 + 3.0 * np.exp(-((v / 2e-3) ** 2))  # noqa: E731
+
+    def rhs(tt, z):
+        v = v_of_t(tt)
+        return v - 1e6 * abs(v) * z / g(v)
+
+    # piecewise constant velocity: integrate each sample interval with a stiff solver
+    z, zs = 0.0, [0.0]
+    for i in range(1, len(t)):
+        v = (x[i] - x[i - 1]) / (t[i] - t[i - 1])
+        sol = solve_ivp(lambda tt, zz: v - 1e6 * abs(v) * zz / g(v), (t[i - 1], t[i]), [z],
+                        method="Radau", rtol=1e-10, atol=1e-14)
+        z = sol.y[0][-1]
+        zs.append(z)
+    zs = np.array(zs)
+    v = np.concatenate([[0.0], np.diff(x) / np.diff(t)])
+    ref = 1e6 * zs + 1e3 * (v - 1e6 * np.abs(v) * zs / g(v))
+    np.testing.assert_allclose(f, ref, atol=1e-6 * 18)
+    assert np.max(np.abs(f - 1e3 * v)) <= 18.0 * (1 + 1e-9)
+
+
+# -- Maxwell-slip: return-point memory ---------------------------------------------------------
+def _minor_loop_gap(spec, values):
+    """Force difference at the same point before and after a nested minor loop."""
+    pts = [0.0, 1e-3, -1e-3, 0.5e-3, 0.1e-3, 0.5e-3, -1e-3]
+    t, x = polyline(pts)
+    _, _, pred = run(spec, t, x, values=values)
+    f = np.asarray(pred.force)
+    # x = 0.5 mm: passed on 0 -> 1 and 1 -> -1, then the reversal point of the minor loop,
+    # then the end of the minor loop (back at the reversal point)
+    hits = np.flatnonzero(np.isclose(x, 0.5e-3, atol=1e-12))
+    assert len(hits) == 4
+    return abs(f[hits[3]] - f[hits[2]]), f
+
+
+def test_maxwell_slip_minor_loops_close_dahl_minor_loops_do_not():
+    gap_ms, _ = _minor_loop_gap("maxwell_slip:4", None)
+    gap_dahl, _ = _minor_loop_gap("dahl", {"sigma0": 40e3, "Fc": 18.0})
+    assert gap_ms < 1e-9
+    assert gap_dahl > 0.1
+
+
+@pytest.mark.parametrize("spec", ["dahl", "dahl:alpha", "lugre", "maxwell_slip:4", "coulomb"])
+def test_friction_dissipates_over_a_closed_loop(spec):
+    t, x = triangle([0.5e-3])
+    _, _, pred = run(spec, t, x)
+    f = np.asarray(pred.force)
+    work = np.sum(0.5 * (f[1:] + f[:-1]) * np.diff(x))  # work done on the seal
+    assert work > 0.1 * 0.5e-3   # well above zero: at least 0.1 N over the loop
+
+
+# -- chamber ---------------------------------------------------------------------------------
+def test_chamber_stepwise_equals_exact_law(paper_rig):
+    t, x = triangle([1e-3, 5e-3])
+    model, drive, pred = run("chamber", t, x, rig=paper_rig, values={"n": 1.35})
+    exact = gas_spring.chamber_force(
+        x, p_a0=float(drive.p_a0), p_b0=float(drive.p_b0), l_a0=0.35, l_b0=0.35,
+        area_a=paper_rig.area_a, area_b=paper_rig.area_b, n=1.35,
+        p_amb=paper_rig.ambient_pressure)
+    np.testing.assert_allclose(np.asarray(pred.force), exact, rtol=1e-10, atol=1e-10)
+    p_a = float(drive.p_a0) * (0.35 / (0.35 + x)) ** 1.35
+    np.testing.assert_allclose(np.asarray(pred.pressure_a), p_a, rtol=1e-12)
+
+
+def test_chamber_measured_and_vented_modes(paper_rig):
+    from fitstiff.log import Rig
+
+    rig = Rig.from_mapping({"bore_mm": 25})
+    t, x = triangle([1e-3])
+    p_a = 101325.0 + 3e5 + 1e3 * np.sin(t)
+    _, _, pred = run("chamber", t, x, rig=rig, pressure_a=p_a, vented=("b",))
+    np.testing.assert_allclose(np.asarray(pred.force), -rig.area_a * (p_a - 101325.0))
+
+
+# -- gradients and vmap ----------------------------------------------------------------------
+GRADIENT_SPECS = ["chamber+dahl", "chamber+dahl:alpha", "chamber+lugre+viscous",
+                  "chamber+maxwell_slip:3", "coulomb+viscous"] + [
+    f"chamber+dahl+{e}" for e in EFFECTS if e != "maxwell_slip"] + ["chamber+dahl+maxwell_slip:2"]
+
+
+@pytest.mark.parametrize("spec", GRADIENT_SPECS)
+def test_gradients_finite_and_match_finite_differences(spec, paper_rig):
+    t = np.linspace(0, 2.0, 400)
+    x = 0.6e-3 * np.sin(2 * np.pi * t / 1.3) + 0.2e-3 * np.sin(2 * np.pi * t / 0.37 + 0.3)
+    still = (np.abs(np.gradient(x, t)) < 2e-4).astype(float)
+    drive = make_drive(displacement=x, time=t, rig=paper_rig, needs_chamber=True, still=still)
+    model = build_model(spec, drives=[drive])
+    par = Parameterization(model)
+    y0 = par.to_unconstrained(model)
+    # evaluate at non-null effect values so every parameter matters
+    y0 = y0 + 0.1
+
+    @jax.jit
+    def f(y):
+        return par.to_model(y, model).predict(drive)
+
+    jac = np.asarray(jax.jacfwd(f)(y0))
+    assert np.all(np.isfinite(jac)), spec
+    h = 1e-6
+    for j, name in enumerate(par.names):
+        e = np.zeros(par.size)
+        e[j] = h
+        fd = (np.asarray(f(y0 + e)) - np.asarray(f(y0 - e))) / (2 * h)
+        scale = max(np.max(np.abs(fd)), 1e-6)
+        assert np.max(np.abs(jac[:, j] - fd)) <= 2e-4 * scale + 1e-7, (spec, name)
+
+
+def test_vmap_over_64_parameter_sets_equals_loop(paper_rig):
+    t, x = triangle([0.2e-3, 0.8e-3])
+    drive = make_drive(displacement=x, time=t, rig=paper_rig, needs_chamber=True)
+    model = build_model("chamber+lugre+viscous", drives=[drive])
+    par = Parameterization(model)
+    ys = par.to_unconstrained(model) + 0.2 * np.random.default_rng(1).normal(size=(64, par.size))
+
+    @jax.jit
+    def f(y):
+        return par.to_model(y, model).predict(drive)
+
+    batched = np.asarray(jax.vmap(f)(jnp.asarray(ys)))
+    looped = np.stack([np.asarray(f(y)) for y in ys])
+    np.testing.assert_allclose(batched, looped, rtol=1e-12, atol=1e-12)
+
+
+# -- every effect does what DESIGN §3 says -----------------------------------------------------
+def plateau(f, mask):
+    return float(np.median(f[mask]))
+
+
+def test_viscous_adds_c_times_v():
+    t, x = triangle([0.5e-3], rate=5e-3)
+    _, _, base = run("dahl", t, x)
+    _, drive, with_c = run("dahl+viscous", t, x, values={"c": 300.0})
+    v = np.concatenate([[0.0], np.diff(x) / np.diff(t)])
+    np.testing.assert_allclose(np.asarray(with_c.force - base.force), 300.0 * v, atol=1e-9)
+
+
+def test_stribeck_friction_falls_with_speed():
+    values = {"stribeck_ratio": 1.5, "stribeck_vs": 1e-3}
+    plateaus = []
+    for rate in (1e-5, 2e-2):
+        t, x = polyline([0.0, 10e-3], rate=rate, fs=2000 * rate / 1e-3)
+        _, _, pred = run("dahl+stribeck", t, x, values=values)
+        plateaus.append(float(pred.force[-1]))
+    assert plateaus[0] == pytest.approx(1.5 * 18.0, rel=1e-3)   # Fs at rest
+    assert plateaus[1] == pytest.approx(18.0, rel=1e-3)         # Fc when sliding fast
+
+
+def test_asymmetry_gives_direction_dependent_level():
+    t, x = polyline([0.0, 10e-3, -10e-3], fs=200)
+    _, _, pred = run("dahl+asymmetry", t, x, values={"level_asym": 0.2})
+    f = np.asarray(pred.force)
+    assert f.max() == pytest.approx(18.0 * 1.2, rel=1e-4)
+    assert f.min() == pytest.approx(-18.0 * 0.8, rel=1e-4)
+
+
+def test_pressure_friction_rises_with_pressure():
+    from fitstiff.log import Rig
+
+    t, x = polyline([0.0, 10e-3], fs=200)
+    levels = {}
+    for bar in (2.0, 6.0):
+        rig = Rig.from_mapping({"bore_mm": 32, "stroke_mm": 700, "start_position_mm": 350,
+                                "supply_bar": bar})
+        drive = make_drive(displacement=x, time=t, rig=rig, needs_chamber=True)
+        model = build_model("dahl+pressure_friction")
+        model = Parameterization(model).with_values(model, {"beta": 0.05e-5})
+        levels[bar] = float(model.predict(drive)[-1])
+    assert levels[6.0] / levels[2.0] == pytest.approx(np.exp(0.05 * 4.0), rel=1e-4)
+
+
+def test_dwell_stiction_grows_with_standstill_duration():
+    peaks = []
+    for pause in (0.0, 0.5, 5.0):
+        t1, x1 = polyline([0.0, 2e-3])
+        t2, x2 = polyline([2e-3, 4e-3])
+        n_pause = int(pause * 1000)
+        tp = t1[-1] + np.arange(1, n_pause + 1) * 1e-3
+        t = np.concatenate([t1, tp, tp[-1:] + t2[1:] + 1e-3 if n_pause else t1[-1] + t2[1:]])
+        x = np.concatenate([x1, np.full(n_pause, 2e-3), x2[1:]])
+        still = np.concatenate([np.zeros_like(x1), np.ones(n_pause), np.zeros(len(x2) - 1)])
+        _, _, pred = run("dahl+dwell_stiction", t, x, still=still,
+                         values={"dwell_gain": 0.5, "dwell_tau": 1.0, "dwell_decay": 0.3e-3})
+        peaks.append(float(np.max(np.asarray(pred.force)[len(x1) + n_pause:])))
+    assert peaks[0] == pytest.approx(18.0, rel=1e-3)
+    assert peaks[0] < peaks[1] < peaks[2]
+    assert peaks[2] > 18.0 * 1.1
+
+
+def test_heat_transfer_makes_stiffness_rate_dependent(paper_rig):
+    def stiffness(rate, heat_rate):
+        t, x = polyline([0.0, 1e-3], rate=rate, fs=1000 * rate / 1e-3)
+        _, _, pred = run("chamber+heat_transfer", t, x, rig=paper_rig,
+                         values={"n": 1.4, "heat_rate": heat_rate})
+        return float(pred.force[-1]) / 1e-3
+
+    k_iso = gas_spring.linear_stiffness(p_a0=701325.0, p_b0=701325.0, l_a0=0.35, l_b0=0.35,
+                                        area_a=paper_rig.area_a, area_b=paper_rig.area_b, n=1.0)
+    assert stiffness(1e2, 1.0) == pytest.approx(1.4 * k_iso, rel=2e-2)     # fast: adiabatic
+    assert stiffness(1e-5, 1.0) == pytest.approx(k_iso, rel=2e-2)          # slow: isothermal
+
+
+def test_leakage_relaxes_the_pressure_difference(paper_rig):
+    t, x = polyline([0.0, 1e-3], rate=1e-2)
+    t = np.concatenate([t, t[-1] + np.arange(1, 20001) * 1e-3])
+    x = np.concatenate([x, np.full(20000, 1e-3)])
+    _, _, pred = run("chamber+leakage", t, x, rig=paper_rig, values={"leak_rate": 0.5})
+    f = np.asarray(pred.force)
+    held = f[-20000:]
+    # exponential decay of the chamber force toward ~0 with rate 0.5/s
+    assert held[-1] < 1e-3 * held[0]
+    k = np.searchsorted(t, t[-20000] + 2.0)
+    assert f[k] / held[0] == pytest.approx(np.exp(-1.0), rel=2e-2)
+
+
+def test_inertia_adds_mass_times_acceleration():
+    t = np.linspace(0, 1, 2001)
+    x = 1e-3 * np.sin(2 * np.pi * 5 * t)
+    _, _, base = run("dahl", t, x)
+    _, _, inert = run("dahl+inertia", t, x, values={"mass": 2.0})
+    a = -(2 * np.pi * 5) ** 2 * x
+    diff = np.asarray(inert.force - base.force)
+    np.testing.assert_allclose(diff[5:-5], 2.0 * a[5:-5], atol=0.01 * 2.0 * np.abs(a).max())
+
+
+def test_force_drift_adds_a_ramp():
+    t, x = triangle([0.5e-3])
+    _, _, base = run("dahl", t, x)
+    _, _, drift = run("dahl+force_drift", t, x, values={"drift": 0.3})
+    np.testing.assert_allclose(np.asarray(drift.force - base.force), 0.3 * (t - t[0]), atol=1e-9)
+
+
+def test_time_delay_shifts_the_force():
+    t, x = triangle([0.5e-3])
+    _, _, base = run("dahl", t, x)
+    _, _, late = run("dahl+time_delay", t, x, values={"delay": 0.05})
+    lag = 50  # samples at 1 kHz
+    np.testing.assert_allclose(np.asarray(late.force)[lag:], np.asarray(base.force)[:-lag],
+                               atol=1e-9)
+
+
+def test_rig_compliance_softens_the_presliding_slope():
+    t, x = polyline([0.0, 1e-3, 0.9e-3], fs=20000)
+    c = 1 / 100e3  # a 100 N/mm rig
+    _, _, pred = run("dahl+rig_compliance", t, x, values={"compliance": c})
+    f = np.asarray(pred.force)
+    i = int(np.argmax(x))
+    slope = (f[i + 5] - f[i]) / (x[i + 5] - x[i])
+    sigma_rev = 40e3 * (1 + f[i] / 18.0)          # Dahl slope right after the reversal
+    assert slope == pytest.approx(1 / (1 / sigma_rev + c), rel=2e-2)
+
+
+# -- spec parsing ----------------------------------------------------------------------------
+@pytest.mark.parametrize("spec, fragment", [
+    ("chamber+dhal", "unknown term 'dhal'"),
+    ("dahl+dahl", "appears twice"),
+    ("chamber+stribeck", "modifies a friction base"),
+    ("dahl+heat_transfer", "modifies the chamber term"),
+    ("lugre+stribeck", "already contains the Stribeck curve"),
+    ("maxwell_slip:0", "whole number from 1 to 32"),
+    ("", "give terms joined by"),
+])
+def test_bad_specs_are_named(spec, fragment):
+    with pytest.raises(InputError, match=fragment):
+        build_model(spec)
+
+
+def test_every_canonical_name_is_a_term():
+    assert set(EFFECTS) <= set(TERMS)
+    assert [n for n, _ in parse_spec("chamber+maxwell_slip:4+viscous")] == [
+        "chamber", "maxwell_slip", "viscous"]
