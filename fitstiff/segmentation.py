@@ -15,8 +15,11 @@ Gaussian-equivalent standard deviation of the displacement noise estimated from 
 differences, ``1.4826 * MAD(diff(x, 2)) / sqrt(6)`` (white noise of standard deviation s has
 second differences of standard deviation ``s * sqrt(6)``; smooth motion contributes almost
 nothing to them, so the estimate holds on ramps, sines and pauses alike), and ``resolution`` is
-the smallest non-zero step between samples (the quantisation of a digital sensor, which a
-still signal may flicker by). Ten standard deviations exceed the peak-to-peak excursion of
+the sensor's quantisation step: the smallest step between two plateaus (a non-zero difference
+with a zero difference on either side), the staircase a quantised sensor leaves when it is
+still or creeping, and the flicker it may show at rest; 0 when there is no such step, as in
+noise-free simulated data. The MAD of the second differences is 0 for a signal that is mostly
+flat, so flicker needs this term. Ten standard deviations exceed the peak-to-peak excursion of
 Gaussian noise over a million samples (about 10.5 s before the median, 7 s after it).
 
 **Pauses** (needs time) are spans of at least ``min_pause`` seconds in which every window of
@@ -218,9 +221,10 @@ def estimate_noise(displacement: np.ndarray) -> float:
 
 
 def _resolution(x: np.ndarray) -> float:
-    steps = np.abs(np.diff(x))
-    steps = steps[steps > 0]
-    return float(steps.min()) if steps.size else 0.0
+    """Smallest non-zero step with a zero step on either side (0 if there is none)."""
+    d = np.diff(x)
+    isolated = d[1:-1][(d[1:-1] != 0) & (d[:-2] == 0) & (d[2:] == 0)]
+    return float(np.abs(isolated).min()) if isolated.size else 0.0
 
 
 def _running_median(x: np.ndarray, window: int) -> np.ndarray:
