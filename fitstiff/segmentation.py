@@ -104,7 +104,8 @@ class Segmentation:
         pauses: ``(n_pauses, 2)`` half-open sample ranges ``[start, stop)`` of standstills.
         pause_durations: dwell time of each pause, ``time[stop - 1] - time[start]`` (s).
         direction: per sample, +1 moving toward the B cap, -1 toward the A cap, 0 standing
-            still (or before the displacement first left the noise band).
+            still (in a pause, or before the first leg starts: the wiggle within the noise
+            band before the displacement first leaves it).
         velocity: per sample, smoothed velocity (m/s); ``None`` without time.
         speed_band: per sample, codes into :data:`SPEED_BANDS`.
         speed_edges: ``(slow/medium, medium/fast)`` speed edges used (m/s).
@@ -247,7 +248,9 @@ def _first_hit(values: np.ndarray, start: int, find, *, chunk: int) -> tuple[int
 
 
 def _first_departure(x: np.ndarray, threshold: float) -> tuple[int, int] | None:
-    """``(index, direction)`` where ``x`` first leaves a band of ``threshold`` around its past."""
+    """``(start, direction)`` of the first leg: ``x`` first leaves a band of ``threshold``
+    around its past at some sample; the leg starts at the last sample of the opposite extremum
+    before it (what precedes is a wiggle within the noise band)."""
     def find(w):
         up = w - np.minimum.accumulate(w) > threshold
         down = np.maximum.accumulate(w) - w > threshold
@@ -258,20 +261,22 @@ def _first_departure(x: np.ndarray, threshold: float) -> tuple[int, int] | None:
     if found is None:
         return None
     i = found[0]
-    up = x[i] - x[: i + 1].min() > threshold
-    return i, (1 if up else -1)
+    direction = 1 if x[i] - x[: i + 1].min() > threshold else -1
+    past = x[: i + 1] * direction
+    return i - int(np.argmin(past[::-1])), direction
 
 
-def _hysteresis_reversals(x: np.ndarray, threshold: float) -> tuple[np.ndarray, int]:
-    """Reversal indices and the direction of the first leg (0 if ``x`` never moves).
+def _hysteresis_reversals(x: np.ndarray, threshold: float) -> tuple[np.ndarray, int, int]:
+    """Reversal indices, the first leg's direction and start (0, n if ``x`` never moves).
 
     Loops over reversals, not samples: each leg is found with vectorised running extrema over
     a window that doubles until the confirming sample is inside it.
     """
     departure = _first_departure(x, threshold)
     if departure is None:
-        return np.empty(0, dtype=np.int64), 0
-    first_direction = direction = departure[1]
+        return np.empty(0, dtype=np.int64), 0, x.size
+    first_start, first_direction = departure
+    direction = first_direction
     reversals = []
     start, chunk = 0, 1024
 
@@ -287,7 +292,7 @@ def _hysteresis_reversals(x: np.ndarray, threshold: float) -> tuple[np.ndarray, 
         reversals.append(r)
         start, direction = r, -direction
         chunk = max(1024, 2 * confirm)
-    return np.asarray(reversals, dtype=np.int64), first_direction
+    return np.asarray(reversals, dtype=np.int64), first_direction, first_start
 
 
 def _pauses(x: np.ndarray, time: np.ndarray, *, band: float, min_pause: float) -> np.ndarray:
@@ -315,7 +320,8 @@ def _pauses(x: np.ndarray, time: np.ndarray, *, band: float, min_pause: float) -
     for k, (start, stop) in enumerate(zip(starts, stops)):
         span = x[start:stop]
         inside = np.flatnonzero(np.abs(span - np.median(span)) <= band / 3)
-        starts[k], stops[k] = start + inside[0], start + inside[-1] + 1
+        if inside.size:
+            starts[k], stops[k] = start + inside[0], start + inside[-1] + 1
     keep = time[stops - 1] - time[starts] >= min_pause * (1 - 1e-9)
     return np.column_stack([starts[keep], stops[keep]]).astype(np.int64)
 
@@ -415,7 +421,7 @@ def segment(
                         THRESHOLD_FLOOR)
     notes: list[str] = []
 
-    reversals, first_direction = _hysteresis_reversals(x, threshold)
+    reversals, first_direction, first_start = _hysteresis_reversals(x, threshold)
     if first_direction == 0:
         notes.append(f"the displacement never moved by more than the threshold "
                      f"({threshold * 1e3:.3g} mm): no motion, no reversals")
@@ -424,6 +430,7 @@ def segment(
     # direction: constant on each leg between reversals, the reversal sample opens a leg
     legs = np.searchsorted(reversals, np.arange(n), side="right")
     direction = np.where(legs % 2 == 0, first_direction, -first_direction).astype(np.int8)
+    direction[:first_start] = 0
 
     time = log.time
     if time is not None:

@@ -145,10 +145,19 @@ def test_direction_per_leg():
     prog = program(GROWING)
     seg = segment(noisy_log(prog, 0))
     r = seg.reversals
-    assert np.all(seg.direction[: r[0]] == 1)  # GROWING starts upwards
+    assert np.all(seg.direction[: r[0]] == 1)  # GROWING starts upwards, at once
     for k in range(r.size):
         leg = seg.direction[r[k]: r[k + 1] if k + 1 < r.size else None]
         assert np.all(leg == (-1 if k % 2 == 0 else 1))
+
+
+def test_direction_zero_before_the_first_leg_without_time():
+    prog = program([0, 0, 1], holds_s={1: 0.5})       # still, then up; no time: no pause
+    log = noisy_log(prog, 0, with_time=False)
+    seg = segment(log)
+    start = int(np.flatnonzero(seg.direction)[0])
+    assert start <= prog.pauses[0, 1] + triangle_tolerance(10e-3)
+    assert np.all(seg.direction[start:] == 1) and seg.reversals.size == 0
 
 
 def test_spikes_make_no_reversals():
