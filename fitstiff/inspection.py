@@ -125,7 +125,7 @@ def format_summary(summary: dict[str, object]) -> str:
         rows += [("duration", f"{s['duration_s']:.4g} s"),
                  ("sample rate", f"{s['sample_rate_hz']:.4g} Hz (median interval "
                                  f"{iv['median']:.4g} ms, {iv['min']:.4g} .. {iv['max']:.4g} ms)"),
-                 ("jitter", f"{s['jitter_percent']:.3g} % (std / median of the intervals "
+                 ("jitter", f"{s['jitter_percent']:.2f} % (std / median of the intervals "
                             f"within {GAP_FACTOR:g} x the median)"),
                  ("gaps", f"{s['gaps']['count']} (total {s['gaps']['total_s']:.3g} s, "
                           f"longest {s['gaps']['longest_s']:.3g} s)")]
