@@ -27,6 +27,7 @@ import io
 import json
 import math
 import os
+import re
 from collections.abc import Mapping
 from pathlib import Path
 from types import MappingProxyType
@@ -49,6 +50,7 @@ DEFAULT_RATE_HZ = 1000.0
 #: significant digits of every number written by :func:`format_log`
 CSV_DIGITS = 9
 _BAR = 1e5
+_ARRAY = "@array:"  # placeholder of a one-line array in _json (never a truth string)
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -143,6 +145,7 @@ def simulate(model_or_spec: Model | str, program: Program, *, rig: Rig,
     model = build_model(model_or_spec) if isinstance(model_or_spec, str) else model_or_spec
     model = _with_display_values(model, params or {})
     time, x_true = program.sample(rate_hz)
+    _check_stroke(x_true, rig, program)
     drive = make_drive(displacement=x_true, time=time, rig=rig, still=_standstill(x_true),
                        name=name, needs_chamber=model.needs_chamber,
                        what=f"model '{model.spec}'")
@@ -216,6 +219,18 @@ def _derived(model: Model, drive: Drive) -> dict[str, object]:
             raise
         return {}
     return {"derived": derived_quantities(model, drive)}
+
+
+def _check_stroke(x: np.ndarray, rig: Rig, program: Program) -> None:
+    """The piston must stay inside the cylinder: ``0 <= x0 + displacement <= stroke``."""
+    if rig.stroke is None or rig.start_position is None:
+        return
+    low, high = rig.start_position + x.min(), rig.start_position + x.max()
+    if low < 0 or high > rig.stroke:
+        raise InputError(None, f"program {program.describe()['program']}",
+                         f"moves the piston over {low * 1e3:.4g}..{high * 1e3:.4g} mm, outside "
+                         f"the stroke 0..{rig.stroke * 1e3:.4g} mm",
+                         "use smaller amplitudes or another start position")
 
 
 def _standstill(x: np.ndarray) -> np.ndarray:
@@ -292,4 +307,18 @@ def _round(obj, digits: int):
 
 
 def _json(obj) -> str:
-    return json.dumps(obj, indent=2, allow_nan=False) + "\n"
+    """Indented JSON with each list of numbers on one line (compact, still readable)."""
+    arrays: list[str] = []
+
+    def stash(o):
+        if isinstance(o, dict):
+            return {k: stash(v) for k, v in o.items()}
+        if isinstance(o, list) and o and all(isinstance(v, (int, float)) for v in o):
+            arrays.append(json.dumps(o, allow_nan=False))
+            return f"{_ARRAY}{len(arrays) - 1}"
+        if isinstance(o, list):
+            return [stash(v) for v in o]
+        return o
+
+    text = json.dumps(stash(obj), indent=2, allow_nan=False)
+    return re.sub(f'"{_ARRAY}(\\d+)"', lambda m: arrays[int(m[1])], text) + "\n"
