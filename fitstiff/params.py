@@ -28,7 +28,7 @@ import numpy as np
 from fitstiff._jax import jax, jnp
 from fitstiff.errors import InputError
 
-__all__ = ["Param", "Parameterization", "TRANSFORMS", "named_params"]
+__all__ = ["Param", "Parameterization", "TRANSFORMS", "find_param", "named_params"]
 
 TRANSFORMS = ("identity", "log", "logit", "ordered")
 
@@ -250,6 +250,14 @@ def named_params(model) -> list[tuple[int, Param, list[str]]]:
             count[p.field] = count.get(p.field, 0) + 1
     return [(i, p, p.element_names(p.field if count[p.field] == 1 else f"{term.name}.{p.field}"))
             for i, term in enumerate(model.terms) for p in term.params()]
+
+
+def find_param(model, name: str) -> Param:
+    """The :class:`Param` behind a flat name (free or fixed); ``KeyError`` if none."""
+    for _, p, names in named_params(model):
+        if name in names:
+            return p
+    raise KeyError(name)
 
 
 def _base(p: Param, names: list[str]) -> str:

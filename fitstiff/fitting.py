@@ -1,0 +1,504 @@
+"""Least-squares identification with optimistix: :func:`fit` -> :class:`FitResult`.
+
+>>> from fitstiff.loading import load_logs
+>>> from fitstiff.fitting import fit
+>>> logs = load_logs(["data/synthetic/fig4/osp32_mid_6bar.csv"])        # doctest: +SKIP
+>>> result = fit(logs, "chamber+dahl")                                   # doctest: +SKIP
+>>> result.converged, result.derived["breakaway_N"]                      # doctest: +SKIP
+(True, (18.02, 0.03))
+
+The solver works on the flat unconstrained vector of :class:`~fitstiff.problem.Problem`
+(model parameters through their transforms, per-log offsets and initial friction states) with
+exact Jacobians through the hysteresis scan (forward-mode autodiff). Starting values come from
+the data (:func:`initial_guess`); ``starts > 1`` adds random restarts around them and keeps
+the best converged run.
+
+Uncertainty is the Gauss-Newton (Laplace) covariance ``s^2 (J^T J)^-1`` at the optimum, with
+``s^2`` the residual variance, inflated by ``(1 + rho) / (1 - rho)`` for the lag-1
+autocorrelation ``rho`` of the residuals (an AR(1) effective sample size). Directions of
+``J^T J`` that the data do not determine are named in ``warnings`` and their parameters get no
+standard error instead of a meaningless one.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Iterable, Mapping, Sequence
+
+import equinox as eqx
+import numpy as np
+import optimistix as optx
+
+from fitstiff._jax import jax, jnp
+from fitstiff.derived import DERIVED, derived_quantities
+from fitstiff.errors import InputError
+from fitstiff.log import Log
+from fitstiff.model import Model
+from fitstiff.params import Parameterization
+from fitstiff.problem import Problem
+from fitstiff.segmentation import REGIONS
+from fitstiff.terms.friction import Coulomb, Dahl, LuGre, MaxwellSlip
+
+__all__ = ["FitResult", "fit", "fit_problem", "initial_guess", "SOLVERS"]
+
+SOLVERS = {
+    "lm": lambda rtol, atol: optx.LevenbergMarquardt(rtol=rtol, atol=atol),
+    "dogleg": lambda rtol, atol: optx.Dogleg(rtol=rtol, atol=atol),
+    "gauss-newton": lambda rtol, atol: optx.GaussNewton(rtol=rtol, atol=atol),
+    "bfgs": lambda rtol, atol: optx.BFGS(rtol=rtol, atol=atol),
+}
+_CORRELATION_WARNING = 0.95
+_SINGULAR = 1e-7       # relative singular value below which a direction is undetermined
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class FitResult:
+    """The outcome of a least-squares fit. Values in SI inside, engineering units at the edges.
+
+    Attributes:
+        model: the fitted model.
+        names: free model-parameter names (flat), then nuisance names ``offset[log]`` ...
+        values: SI values of ``names`` (nuisances: N for offsets, fraction for states).
+        stderr: standard errors (SI); NaN where the data do not determine the parameter.
+        units, scales: display unit and SI-per-display factor of each model parameter.
+        covariance: covariance of ``values`` (SI), after the autocorrelation inflation.
+        derived: name -> ``(value, stderr)`` in engineering units (DESIGN §1.2), at the first
+            log's operating point; ``per_log`` holds each log's chamber stiffness.
+        converged: the solver's verdict; ``message`` says why not.
+        rms_N: RMS force residual over the weighted samples of all logs.
+    """
+
+    model: Model
+    names: tuple[str, ...]
+    values: np.ndarray
+    stderr: np.ndarray
+    covariance: np.ndarray
+    units: Mapping[str, str]
+    scales: Mapping[str, float]
+    fixed: Mapping[str, float]
+    derived: Mapping[str, tuple[float, float]]
+    per_log: Sequence[Mapping[str, object]]
+    converged: bool
+    message: str
+    steps: int
+    solver: str
+    rms_N: float
+    cost: float
+    n_data: int
+    n_params: int
+    aic: float
+    bic: float
+    residual_autocorrelation: float
+    warnings: tuple[str, ...]
+    files: tuple[str, ...]
+    starts: Mapping[str, int]
+    theta: np.ndarray
+    problem: Problem = dataclasses.field(repr=False)
+
+    @property
+    def n_model_params(self) -> int:
+        return len(self.units)
+
+    def value(self, name: str) -> float:
+        """SI value of a parameter (free or fixed) by flat name."""
+        if name in self.names:
+            return float(self.values[self.names.index(name)])
+        return float(self.fixed[name])
+
+    def parameters(self) -> dict[str, dict[str, object]]:
+        """``name -> {value, stderr, unit}`` in display units (fit.json ``parameters``)."""
+        out = {}
+        for i, name in enumerate(self.names[:self.n_model_params]):
+            s = self.scales[name]
+            out[name] = {"value": self.values[i] / s, "stderr": _finite(self.stderr[i] / s),
+                         "unit": self.units[name]}
+        for name, value in self.fixed.items():
+            scale = self.problem.par_scale(name)
+            out[name] = {"value": value / scale, "stderr": None,
+                         "unit": self.problem.par_unit(name), "fixed": True}
+        return out
+
+    def to_dict(self) -> dict[str, object]:
+        """The ``fit.json`` content (DESIGN §5)."""
+        n_model = self.n_model_params
+        corr = _correlation(self.covariance[:n_model, :n_model])
+        return {
+            "model": self.model.spec,
+            "parameters": self.parameters(),
+            "derived": {k: {"value": _finite(v), "stderr": _finite(e)}
+                        for k, (v, e) in self.derived.items()},
+            "rms_N": self.rms_N,
+            "converged": self.converged,
+            "message": self.message,
+            "solver": self.solver,
+            "steps": self.steps,
+            "files": list(self.files),
+            "per_log": list(self.per_log),
+            "n_data": self.n_data,
+            "n_params": self.n_params,
+            "aic": self.aic,
+            "bic": self.bic,
+            "residual_autocorrelation": self.residual_autocorrelation,
+            "correlation": {"names": list(self.names[:n_model]),
+                            "matrix": np.where(np.isfinite(corr), corr, np.nan)},
+            "warnings": list(self.warnings),
+            "starts": dict(self.starts),
+        }
+
+    def table(self) -> str:
+        """A readable table with units."""
+        lines = [f"model {self.model.spec}: "
+                 + ("converged" if self.converged else f"NOT CONVERGED ({self.message})")
+                 + f" after {self.steps} steps; rms {self.rms_N:.4g} N over {self.n_data} data"]
+        lines.append(f"  {'parameter':<22}{'value':>14}{'stderr':>12}  unit")
+        for name, p in self.parameters().items():
+            err = "fixed" if p.get("fixed") else ("n/d" if p["stderr"] is None
+                                                 else f"{p['stderr']:.4g}")
+            lines.append(f"  {name:<22}{p['value']:>14.6g}{err:>12}  {p['unit']}")
+        lines.append(f"  {'derived':<22}")
+        for name, (v, e) in self.derived.items():
+            label, unit = _split_unit(name)
+            err = "n/d" if not np.isfinite(e) else f"{e:.4g}"
+            lines.append(f"  {label:<22}{v:>14.6g}{err:>12}  {unit}")
+        for log in self.per_log:
+            lines.append(f"  log {log['name']}: rms {log['rms_N']:.4g} N, offset "
+                         f"{log['offset_N']:.4g} N, chamber stiffness "
+                         f"{_fmt(log['chamber_stiffness_N_per_mm'])} N/mm")
+        for w in self.warnings:
+            lines.append(f"  warning: {w}")
+        return "\n".join(lines)
+
+
+def _fmt(v) -> str:
+    return "n/a" if v is None or not np.isfinite(v) else f"{v:.4g}"
+
+
+def _split_unit(name: str) -> tuple[str, str]:
+    for suffix, unit in (("_N_per_mm", "N/mm"), ("_mm", "mm"), ("_N", "N")):
+        if name.endswith(suffix):
+            return name[: -len(suffix)], unit
+    return name, ""
+
+
+def _finite(v):
+    v = float(v)
+    return v if math.isfinite(v) else None
+
+
+def _correlation(cov: np.ndarray) -> np.ndarray:
+    d = np.sqrt(np.diag(cov))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return cov / np.outer(d, d)
+
+
+# -- starting values ----------------------------------------------------------------------
+def initial_guess(problem: Problem) -> tuple[Model, dict[str, np.ndarray]]:
+    """Starting values from the data: levels from the sliding plateaus, slope from the samples
+    right after reversals, offsets from the plateau midlines, the chamber from geometry.
+
+    Fixed parameters keep their values; parameters the data do not inform keep the model's.
+    """
+    model = problem.model
+    chamber_only = [Model((model.term("chamber"),))] if model.has("chamber") else []
+    predict = problem.cached("predict", lambda: jax.jit(lambda m, d: m.predict(d)))
+    levels, offsets, slopes, states = [], [], [], []
+    for log, seg, drive in zip(problem.logs, problem.segmentations, problem.drives):
+        force = np.asarray(log.force)
+        k_chamber = 0.0
+        if chamber_only:
+            force = force - np.asarray(predict(chamber_only[0], drive))
+            k_chamber = float(model.term("chamber").stiffness(drive))
+            k_chamber = k_chamber if math.isfinite(k_chamber) else 0.0
+        sliding = seg.mask("sliding")
+        pool = force[sliding] if sliding.sum() > 20 else force
+        lo, hi = np.percentile(pool, [5, 95])
+        level, offset = max((hi - lo) / 2, 1e-3), (hi + lo) / 2
+        levels.append(level)
+        offsets.append(offset)
+        states.append(float(np.clip((force[0] - offset) / level, -0.9, 0.9)))
+        x = np.asarray(drive.displacement)
+        for r in seg.reversals:
+            window = 0.1 * level / 40e3
+            after = np.flatnonzero(np.abs(x[r:r + 2000] - x[r]) <= window)
+            after = after[after == np.arange(after.size)] + r   # contiguous from r
+            if after.size < 4 or np.ptp(x[after]) <= 0:
+                continue
+            slope = np.polyfit(x[after], force[after], 1)[0] - k_chamber
+            rel = min(abs(force[r] - offset) / level, 1.0)
+            slopes.append((abs(slope), rel))
+    level = float(np.median(levels))
+    tangent = float(np.median([s for s, _ in slopes])) if slopes else None
+    reversal_state = float(np.median([r for _, r in slopes])) if slopes else 1.0
+    values: dict[str, float] = {}
+    terms = list(model.terms)
+    fixed = problem.par_fixed
+    first = True
+    for i, term in enumerate(terms):
+        if term.kind != "friction":
+            continue
+        share = 1.0 if first else 0.05     # later bases start small (candidate effects)
+        first = False
+        if isinstance(term, MaxwellSlip):
+            slope = (tangent or 40e3) * share
+            fresh = MaxwellSlip.with_elements(int(np.shape(term.k)[0]), slope=slope,
+                                              breakaway=level * share)
+            if not {"k_1", "delta_1"} & fixed:
+                terms[i] = fresh
+            continue
+        sigma0 = (tangent / (1.0 + reversal_state)) if tangent else None
+        if isinstance(term, (Dahl, LuGre)) and sigma0:
+            terms[i] = dataclasses.replace(terms[i], sigma0=sigma0 * share)
+        if isinstance(term, Dahl | Coulomb):
+            terms[i] = dataclasses.replace(terms[i], Fc=level * share)
+        if isinstance(term, LuGre):
+            terms[i] = dataclasses.replace(terms[i], Fc=0.85 * level * share, Fs=level * share)
+    guess = model.with_terms(tuple(terms))
+    # restore anything the user fixed
+    par_all = Parameterization(model)
+    keep = {n: v for n, v in par_all.values(model).items() if n in fixed}
+    if keep:
+        guess = Parameterization(guess).with_values(guess, keep)
+    del values
+    return guess, {"offset": np.asarray(offsets), "friction_state0": np.asarray(states)}
+
+
+# -- the fit --------------------------------------------------------------------------------
+def fit(logs: Sequence[Log], model: Model | str, *, fix: Mapping[str, float] | Iterable[str] = (),
+        solver: str = "lm", starts: int = 1, seed: int = 0, max_steps: int = 400,
+        rtol: float = 1e-8, atol: float = 1e-8, denoise: bool | str = "auto",
+        sample_range: tuple[int | None, int | None] | None = None,
+        weights: Mapping[str, float] | None = None, skip: int = 0) -> FitResult:
+    """Fit ``model`` jointly to ``logs`` by nonlinear least squares.
+
+    Args:
+        logs: loaded logs (:func:`fitstiff.loading.load_logs`); seal and chamber parameters
+            are shared, each log has its own force offset and initial friction state.
+        model: spec string (``"chamber+dahl"``) or a built model (its values start the fit).
+        fix: names to hold (``["n"]``) or names with values (``{"n": 1.4}``, SI units).
+        solver: one of :data:`SOLVERS` (Levenberg-Marquardt by default).
+        starts: number of starts; the first from :func:`initial_guess`, the others random
+            perturbations of it (``seed``); the best converged run is kept.
+        denoise, sample_range, weights, skip: see :class:`~fitstiff.problem.Problem`.
+
+    Returns:
+        A :class:`FitResult`; ``converged`` is False (with ``message``) when the solver did
+        not converge - the result is never silently dropped or raised away.
+
+    Example:
+        >>> result = fit(logs, "chamber+dahl", fix={"n": 1.4})          # doctest: +SKIP
+        >>> print(result.table())                                        # doctest: +SKIP
+    """
+    problem = Problem(logs, model, fix=fix, denoise=denoise, sample_range=sample_range,
+                      weights=weights, skip=skip)
+    return fit_problem(problem, solver=solver, starts=starts, seed=seed, max_steps=max_steps,
+                       rtol=rtol, atol=atol)
+
+
+class _Solver(eqx.Module):
+    """A compiled least-squares solve for one problem (reused across starts and calls)."""
+
+    problem: Problem = eqx.field(static=True)
+    solver: optx.AbstractLeastSquaresSolver
+    max_steps: int = eqx.field(static=True)
+
+    @eqx.filter_jit
+    def __call__(self, theta0):
+        residuals = _materialised_jacobian(self.problem.residuals)
+
+        def fn(theta, _):
+            return residuals(theta)
+
+        sol = optx.least_squares(fn, self.solver, theta0, max_steps=self.max_steps,
+                                 throw=False)
+        r = self.problem.residuals(sol.value)
+        return sol.value, sol.result, sol.stats["num_steps"], jnp.sum(r**2)
+
+
+def _materialised_jacobian(f):
+    """``f`` whose JVP multiplies by a Jacobian built once per point with ``jacfwd``.
+
+    The solvers linearise the residual function and then apply the linear map once per
+    parameter (to materialise it) and again in the linear solves; replaying the linearised
+    hysteresis scan each time costs several times one forward-mode Jacobian. With this rule
+    the scan runs once per point, carrying all parameter tangents together.
+    """
+
+    @jax.custom_jvp
+    def wrapped(theta):
+        return f(theta)
+
+    @wrapped.defjvp
+    def _jvp(primals, tangents):
+        (theta,), (tangent,) = primals, tangents
+        jac, value = jax.jacfwd(lambda th: (f(th), f(th)), has_aux=True)(theta)
+        return value, jac @ tangent
+
+    return wrapped
+
+
+def fit_problem(problem: Problem, *, solver: str = "lm", starts: int = 1, seed: int = 0,
+                max_steps: int = 400, rtol: float = 1e-8, atol: float = 1e-8,
+                initial: tuple[Model, Mapping[str, np.ndarray]] | None = None) -> FitResult:
+    """Fit a prepared :class:`~fitstiff.problem.Problem` (see :func:`fit`)."""
+    if solver not in SOLVERS:
+        raise InputError(None, f"--solver {solver}", "unknown solver",
+                         f"use one of: {', '.join(SOLVERS)}")
+    if starts < 1:
+        raise InputError(None, f"--starts {starts}", "must be at least 1", "give 1 or more")
+    model0, nuis0 = initial or initial_guess(problem)
+    theta0 = problem.pack(model0, nuis0)
+    run = problem.cached(("solve", solver, rtol, atol, max_steps), lambda: _Solver(
+        problem, SOLVERS[solver](rtol, atol), max_steps))
+    rng = np.random.default_rng(seed)
+    runs = []
+    for k in range(starts):
+        start = np.array(theta0)
+        if k:
+            start[:problem.par.size] += rng.normal(scale=0.5, size=problem.par.size)
+        theta, result, steps, cost = run(jnp.asarray(start))
+        ok = bool(result == optx.RESULTS.successful) and bool(np.isfinite(cost))
+        runs.append((ok, float(cost), np.asarray(theta), result, int(steps)))
+    converged_runs = [r for r in runs if r[0]]
+    best = min(converged_runs or runs, key=lambda r: r[1] if np.isfinite(r[1]) else np.inf)
+    agreed = sum(1 for r in converged_runs
+                 if abs(r[1] - best[1]) <= 1e-6 * max(best[1], 1.0)
+                 and np.allclose(problem.par.physical(jnp.asarray(r[2][:problem.par.size])),
+                                 problem.par.physical(jnp.asarray(best[2][:problem.par.size])),
+                                 rtol=1e-3, atol=1e-9))
+    ok, cost, theta, result, steps = best
+    message = "converged" if ok else (optx.RESULTS[result] if not np.isfinite(cost) or
+                                      result != optx.RESULTS.successful else "non-finite cost")
+    return _summarise(problem, jnp.asarray(theta), converged=ok, message=str(message),
+                      steps=steps, solver=solver,
+                      starts={"requested": starts, "converged": len(converged_runs),
+                              "agreed": agreed})
+
+
+def _summarise(problem: Problem, theta, *, converged: bool, message: str, steps: int,
+               solver: str, starts: Mapping[str, int]) -> FitResult:
+    ev = problem.cached("summary", lambda: _summary_functions(problem))
+    residuals, jac, values, dphys, d0, g0 = (np.asarray(a) for a in ev(theta))
+    n_data, n_par = problem.n_data, problem.size
+    cost = float(residuals @ residuals)
+    s2 = cost / max(n_data - n_par, 1)
+    per_log_pred = problem.per_log(theta)
+    rho = _lag1(problem, per_log_pred)
+    inflation = (1 + rho) / (1 - rho) if rho > 0 else 1.0
+
+    # covariance in theta, via SVD; undetermined directions named, not inverted
+    _, sv, vt = np.linalg.svd(jac, full_matrices=False)
+    keep = sv > _SINGULAR * sv[0] if sv.size else np.zeros(0, bool)
+    inv = np.where(keep, 1.0 / np.where(keep, sv, 1.0) ** 2, 0.0)
+    cov_theta = (vt.T * inv) @ vt * s2 * inflation
+    names = problem.names
+    warnings = []
+    undetermined = np.zeros(n_par, dtype=bool)
+    for j in np.flatnonzero(~keep):
+        involved = np.flatnonzero(np.abs(vt[j]) > 0.3)
+        undetermined[involved] = True
+        combo = " + ".join(f"{vt[j][i]:+.2f} {names[i]}" for i in involved)
+        warnings.append(f"the data do not determine the combination {combo}; their standard "
+                        "errors are not reported (fix one of them or add excitation)")
+
+    # physical values and their covariance (delta method through the transforms)
+    cov = dphys @ cov_theta @ dphys.T
+    stderr = np.sqrt(np.clip(np.diag(cov), 0, None))
+    stderr[undetermined] = np.nan
+    corr = _correlation(cov[:problem.par.size, :problem.par.size])
+    model_names = problem.par.names
+    for i in range(len(model_names)):
+        for j in range(i + 1, len(model_names)):
+            if abs(corr[i, j]) > _CORRELATION_WARNING and not (undetermined[i] or undetermined[j]):
+                warnings.append(
+                    f"{model_names[i]} and {model_names[j]} are strongly correlated "
+                    f"(r = {corr[i, j]:+.3f}): the data determine mainly a combination of "
+                    "them, so their separate values are uncertain")
+    if rho > 0.5:
+        warnings.append(f"residuals are strongly autocorrelated (lag-1 r = {rho:.2f}): "
+                        "standard errors are inflated by the AR(1) factor "
+                        f"{math.sqrt(inflation):.2f}; the model may miss an effect "
+                        "(see fitstiff diagnose)")
+    if not converged:
+        warnings.insert(0, f"the solver did not converge: {message}")
+
+    # derived quantities at the first log's operating point (per-log chamber stiffness below)
+    var0 = np.einsum("ij,jk,ik->i", g0, cov_theta, g0)
+    derived = {}
+    for k, name in enumerate(DERIVED):
+        err = math.sqrt(max(var0[k], 0.0))
+        if np.any(undetermined & (np.abs(g0[k]) > 0)):
+            err = float("nan")
+        derived[name] = (float(d0[k]), err)
+
+    model, nuis = problem.unpack(theta)
+    per_log = []
+    raw_sq, raw_n = 0.0, 0
+    for i, (log, pred) in enumerate(zip(problem.logs, per_log_pred)):
+        w = problem.sample_weights[i] > 0
+        res = (pred["force"] - np.asarray(log.force))[w]
+        raw_sq += float(res @ res)
+        raw_n += res.size
+        k_ch = (float(model.term("chamber").stiffness(problem.drives[i])) * 1e-3
+                if model.has("chamber") else 0.0)
+        entry = {"name": log.name, "file": str(log.path) if log.path else None,
+                 "samples": len(log), "rms_N": math.sqrt(float(res @ res) / max(res.size, 1)),
+                 "offset_N": float(nuis["offset"][i]) if "offset" in nuis else 0.0,
+                 "friction_state0": (float(nuis["friction_state0"][i])
+                                     if "friction_state0" in nuis else None),
+                 "chamber_stiffness_N_per_mm": _finite(k_ch),
+                 "force_noise_N": problem.force_noise[i],
+                 "displacement_noise_um": problem.displacement_noise[i] * 1e6,
+                 "denoised_displacement": problem.denoised[i]}
+        per_log.append(entry)
+    k = n_par
+    n = max(n_data, 1)
+    aic = n * math.log(max(cost, 1e-300) / n) + 2 * k
+    bic = n * math.log(max(cost, 1e-300) / n) + k * math.log(n)
+    fixed = {name: v for name, v in Parameterization(problem.model).values(model).items()
+             if name in problem.par_fixed}
+    return FitResult(
+        model=model, names=tuple(names), values=values, stderr=stderr, covariance=cov,
+        units=problem.par.units(), scales=dict(zip(model_names, problem.par.scales())),
+        fixed=fixed, derived=derived, per_log=per_log, converged=converged, message=message,
+        steps=steps, solver=solver, rms_N=math.sqrt(raw_sq / max(raw_n, 1)), cost=cost,
+        n_data=n_data, n_params=n_par, aic=aic, bic=bic, residual_autocorrelation=rho,
+        warnings=tuple(warnings),
+        files=tuple(str(log.path) if log.path else log.name for log in problem.logs),
+        starts=starts, theta=np.asarray(theta), problem=problem)
+
+
+def _summary_functions(problem: Problem):
+    """One compiled function: residuals, Jacobian, physical values and their Jacobian,
+    derived quantities (first log) and their gradient, all at ``theta``."""
+
+    def physical(th):
+        _, nuis = problem.unpack(th)
+        parts = [problem.par.physical(th[:problem.par.size])]
+        parts += [nuis[n] for n in problem.nuisance_names]
+        return jnp.concatenate(parts)
+
+    def derived_vec(th):
+        model, _ = problem.unpack(th)
+        d = derived_quantities(model, problem.drives[0])
+        return jnp.stack([d[k] for k in DERIVED])
+
+    @jax.jit
+    def evaluate(theta):
+        return (problem.residuals(theta), jax.jacfwd(problem.residuals)(theta),
+                physical(theta), jax.jacfwd(physical)(theta), derived_vec(theta),
+                jax.jacfwd(derived_vec)(theta))
+
+    return evaluate
+
+
+def _lag1(problem: Problem, per_log_pred) -> float:
+    """Pooled lag-1 autocorrelation of the force residuals over the weighted samples."""
+    num = den = 0.0
+    for i, (log, pred) in enumerate(zip(problem.logs, per_log_pred)):
+        res = pred["force"] - np.asarray(log.force)
+        res = res[problem.sample_weights[i] > 0]
+        res = res - res.mean()
+        num += float(res[1:] @ res[:-1])
+        den += float(res @ res)
+    return float(np.clip(num / den, -0.99, 0.99)) if den > 0 else 0.0

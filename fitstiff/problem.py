@@ -1,0 +1,318 @@
+"""The identification problem: model + logs -> one flat parameter vector -> whitened residuals.
+
+Shared by least squares (:mod:`fitstiff.fitting`) and the posterior
+(:mod:`fitstiff.posterior`), so both see the same coordinates and the same data.
+
+The flat vector ``theta`` is ``[shared model parameters (unconstrained), per-log nuisances]``.
+Per-log nuisances are the force-channel offset (N, always) and, for models with a friction
+base, the initial friction state (fraction of saturation in (-1, 1), through ``tanh``): a log
+may start mid-hysteresis. Either can be fixed with ``fix``.
+
+Residuals are whitened per channel: force residuals divided by the log's force-noise estimate,
+and, for closed chambers whose pressure is logged, pressure residuals divided by the
+pressure-noise estimate (these identify the polytropic exponent ``n``). Logs with the same
+static structure are padded to one length and evaluated with one ``vmap``-ed scan, so the
+compile time does not grow with the number of logs; padded samples carry zero weight.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Iterable, Mapping, Sequence
+
+import equinox as eqx
+import numpy as np
+
+from fitstiff._jax import jax, jnp
+from fitstiff.denoise import denoise_displacement
+from fitstiff.drive import Drive, drive_from_log
+from fitstiff.errors import InputError
+from fitstiff.log import Log
+from fitstiff.model import Model, build_model, parse_spec
+from fitstiff.params import Parameterization, find_param, named_params
+from fitstiff.segmentation import REGIONS, Segmentation, estimate_noise, segment
+
+__all__ = ["Problem", "NUISANCES", "channel_noise"]
+
+#: per-log nuisance names (fit.json ``per_log``)
+NUISANCES = ("offset", "friction_state0")
+_PRESSURE_NOISE_FLOOR = 10.0   # Pa, below any real sensor
+_FORCE_NOISE_FLOOR = 1e-3      # N
+
+
+def channel_noise(values: np.ndarray) -> float:
+    """Gaussian-equivalent white-noise level of a sampled channel (MAD of 2nd differences)."""
+    return estimate_noise(values)
+
+
+@dataclasses.dataclass(frozen=True)
+class _Group:
+    """Logs with one static structure, padded and stacked for one vmap-ed scan."""
+
+    index: tuple[int, ...]       # positions of the logs in Problem.logs
+    drive: Drive                 # stacked: leaves have a leading log axis
+    force: jnp.ndarray           # (L, N) measured force
+    weight: jnp.ndarray          # (L, N) 1/sigma_F * sample weight (0 on padding)
+    pressure: tuple              # per chamber: (L, N) measured abs pressure or None
+    pressure_weight: tuple       # per chamber: (L, N) 1/sigma_p (0 on padding) or None
+
+
+class Problem:
+    """Model, logs and the map from ``theta`` to whitened residuals.
+
+    Args:
+        logs: the logs to fit jointly (seal and chamber parameters shared).
+        model: spec string or a built model (its values are the starting point).
+        fix: parameter names to hold at their current value (``{"n": 1.4}`` sets and fixes;
+            a plain iterable of names fixes at the model's values). Nuisance names
+            ``offset`` / ``friction_state0`` fix those for every log.
+        denoise: replace each displacement by its reversal-preserving monotone estimate
+            (:mod:`fitstiff.denoise`) before driving the model. ``"auto"``: when the
+            estimated displacement noise is above 0.05 um.
+        sample_range: ``(start, stop)`` sample indices used in every log (others weigh 0).
+        weights: extra weight per segmentation region, e.g. ``{"presliding": 4.0}``.
+        skip: samples at the start of every log that drive the model but weigh 0 (a warm-up
+            that settles the friction state).
+    """
+
+    def __init__(self, logs: Sequence[Log], model: Model | str, *,
+                 fix: Mapping[str, float] | Iterable[str] = (), denoise: bool | str = "auto",
+                 sample_range: tuple[int | None, int | None] | None = None,
+                 weights: Mapping[str, float] | None = None, skip: int = 0):
+        if not logs:
+            raise InputError(None, "logs", "none given", "name at least one CSV log")
+        self.logs = list(logs)
+        self.segmentations: list[Segmentation] = [segment(log) for log in self.logs]
+        spec = model if isinstance(model, str) else model.spec
+        names = [n for n, _ in parse_spec(spec)]
+        needs = "chamber" in names or "pressure_friction" in names
+        self.displacement_noise = [s.noise for s in self.segmentations]
+        self.denoised = [self._want_denoise(denoise, s) for s in self.segmentations]
+        self.drives: list[Drive] = []
+        for log, seg, den in zip(self.logs, self.segmentations, self.denoised):
+            still = (seg.region == REGIONS.index("standstill")).astype(float)
+            drive = drive_from_log(log, needs_chamber=needs, still=still,
+                                   what=f"model '{spec}'")
+            if den:
+                x = denoise_displacement(log.displacement, seg.reversals)
+                drive = eqx.tree_at(lambda d: d.displacement, drive, jnp.asarray(x))
+            self.drives.append(drive)
+        built = build_model(model, drives=self.drives) if isinstance(model, str) else model
+        fixed_values = dict(fix) if isinstance(fix, Mapping) else {}
+        fixed_names = set(fix)
+        self.fixed_nuisances = fixed_names & set(NUISANCES)
+        model_fixed = fixed_names - set(NUISANCES)
+        if fixed_values:
+            model_values = {k: v for k, v in fixed_values.items() if k in model_fixed}
+            built = Parameterization(built).with_values(built, model_values, where="--fix")
+        self.model = built
+        self.par = Parameterization(built, fixed=model_fixed)
+        self.has_friction = bool(built.of_kind("friction"))
+        self.nuisance_names = [n for n in NUISANCES if n not in self.fixed_nuisances
+                               and (n != "friction_state0" or self.has_friction)]
+        self.force_noise = [max(channel_noise(log.force), _FORCE_NOISE_FLOOR)
+                            for log in self.logs]
+        self.pressure_noise = [
+            {c: max(channel_noise(p), _PRESSURE_NOISE_FLOOR)
+             for c, p in (("a", log.pressure_a), ("b", log.pressure_b)) if p is not None}
+            for log in self.logs]
+        self.sample_weights = [self._weights(log, seg, sample_range, weights, skip)
+                               for log, seg in zip(self.logs, self.segmentations)]
+        self._groups = self._build_groups()
+        self._compiled: dict[object, object] = {}
+        self.n_data = int(sum(int(np.count_nonzero(np.asarray(g.weight))) + sum(
+            int(np.count_nonzero(np.asarray(w))) for w in g.pressure_weight if w is not None)
+            for g in self._groups))
+
+    # -- set-up ---------------------------------------------------------------------------
+    @staticmethod
+    def _want_denoise(denoise, seg: Segmentation) -> bool:
+        if denoise == "auto":
+            return seg.noise > 0.05e-6
+        return bool(denoise)
+
+    @staticmethod
+    def _weights(log, seg, sample_range, weights, skip) -> np.ndarray:
+        n = len(log)
+        w = np.ones(n)
+        if sample_range is not None:
+            start, stop = sample_range
+            keep = np.zeros(n, dtype=bool)
+            keep[slice(start, stop)] = True
+            w[~keep] = 0.0
+        if skip:
+            w[:skip] = 0.0
+        for region, factor in (weights or {}).items():
+            if region not in REGIONS:
+                raise InputError(None, f"--weight {region}={factor}", "unknown region",
+                                 f"use one of: {', '.join(REGIONS)}")
+            if factor < 0 or not math.isfinite(factor):
+                raise InputError(None, f"--weight {region}={factor}", "negative or not finite",
+                                 "give a weight >= 0")
+            w[seg.mask(region)] *= factor
+        if not np.any(w > 0):
+            raise InputError(log.path and str(log.path) or log.name, "sample selection",
+                             "leaves no sample with weight > 0",
+                             "widen --range or lower --skip")
+        return w
+
+    def _build_groups(self) -> list[_Group]:
+        keys: dict[tuple, list[int]] = {}
+        for i, d in enumerate(self.drives):
+            keys.setdefault((d.modes, d.observed, d.has_time), []).append(i)
+        groups = []
+        for index in keys.values():
+            n_max = max(len(self.drives[i]) for i in index)
+            drives = [_pad_drive(self.drives[i], n_max) for i in index]
+            stacked = jax.tree.map(lambda *xs: jnp.stack(xs), *drives)
+            force = np.stack([_pad(self.logs[i].force, n_max) for i in index])
+            weight = np.stack([_pad(self.sample_weights[i], n_max, fill=0.0)
+                               / self.force_noise[i] for i in index])
+            pressures, pressure_weights = [], []
+            for c, chamber in enumerate(("a", "b")):
+                if not self.drives[index[0]].observed[c]:
+                    pressures.append(None)
+                    pressure_weights.append(None)
+                    continue
+                attr = f"pressure_{chamber}"
+                pressures.append(jnp.asarray(np.stack(
+                    [_pad(getattr(self.logs[i], attr), n_max) for i in index])))
+                pressure_weights.append(jnp.asarray(np.stack(
+                    [_pad(self.sample_weights[i] > 0, n_max, fill=0.0).astype(float)
+                     / self.pressure_noise[i][chamber] for i in index])))
+            groups.append(_Group(tuple(index), stacked, jnp.asarray(force), jnp.asarray(weight),
+                                 tuple(pressures), tuple(pressure_weights)))
+        return groups
+
+    # -- the flat vector ------------------------------------------------------------------
+    @property
+    def n_logs(self) -> int:
+        return len(self.logs)
+
+    @property
+    def names(self) -> list[str]:
+        """Names of theta's entries: model parameters, then ``<nuisance>[<log name>]``."""
+        return self.par.names + [f"{n}[{log.name}]" for n in self.nuisance_names
+                                 for log in self.logs]
+
+    @property
+    def size(self) -> int:
+        return self.par.size + len(self.nuisance_names) * self.n_logs
+
+    def pack(self, model: Model, nuisances: Mapping[str, Sequence[float]] | None = None):
+        """theta from a model and per-log nuisance values (``offset`` in N,
+        ``friction_state0`` in (-1, 1)); missing nuisances are 0."""
+        parts = [np.asarray(self.par.to_unconstrained(model))]
+        for name in self.nuisance_names:
+            values = np.asarray((nuisances or {}).get(name, np.zeros(self.n_logs)), float)
+            parts.append(np.arctanh(np.clip(values, -0.999, 0.999))
+                         if name == "friction_state0" else values)
+        return jnp.asarray(np.concatenate(parts))
+
+    def unpack(self, theta):
+        """``(model, {nuisance: (n_logs,) values})`` for ``theta`` (differentiable)."""
+        model = self.par.to_model(theta[:self.par.size], self.model)
+        out, off = {}, self.par.size
+        for name in self.nuisance_names:
+            block = theta[off:off + self.n_logs]
+            out[name] = jnp.tanh(block) if name == "friction_state0" else block
+            off += self.n_logs
+        return model, out
+
+    def log_jacobian(self, theta):
+        """log |d(physical)/d(theta)| of the model part (nuisances: offsets flat; the
+        initial friction state's tanh Jacobian is included)."""
+        lj = self.par.log_jacobian(theta[:self.par.size])
+        if "friction_state0" in self.nuisance_names:
+            off = self.par.size + self.nuisance_names.index("friction_state0") * self.n_logs
+            block = theta[off:off + self.n_logs]
+            lj = lj + jnp.sum(jnp.log1p(-jnp.tanh(block) ** 2))
+        return lj
+
+    # -- evaluation -----------------------------------------------------------------------
+    def _group_drive(self, group: _Group, nuisances):
+        idx = jnp.asarray(group.index)
+        drive = group.drive
+        if "offset" in nuisances:
+            drive = eqx.tree_at(lambda d: d.force_offset, drive, nuisances["offset"][idx])
+        if "friction_state0" in nuisances:
+            drive = eqx.tree_at(lambda d: d.friction_state0, drive,
+                                nuisances["friction_state0"][idx])
+        return drive
+
+    def predictions(self, theta):
+        """Per group: the vmap-ed :class:`~fitstiff.model.Prediction` (leading log axis)."""
+        model, nuisances = self.unpack(theta)
+        return [jax.vmap(model.run)(self._group_drive(g, nuisances)) for g in self._groups]
+
+    def residuals(self, theta):
+        """Whitened residual vector (model - data), padded entries exactly 0."""
+        parts = []
+        for group, pred in zip(self._groups, self.predictions(theta)):
+            parts.append(((pred.force - group.force) * group.weight).ravel())
+            for c, measured in enumerate(group.pressure):
+                if measured is None:
+                    continue
+                modelled = pred.pressure_a if c == 0 else pred.pressure_b
+                parts.append(((modelled - measured) * group.pressure_weight[c]).ravel())
+        return jnp.concatenate(parts)
+
+    def per_log(self, theta) -> list[dict[str, np.ndarray]]:
+        """Per log (in order): predicted force, per-term forces and pressures, unpadded."""
+        out: list[dict[str, np.ndarray] | None] = [None] * self.n_logs
+        predictions = self.cached("predictions", lambda: jax.jit(self.predictions))
+        for group, pred in zip(self._groups, predictions(theta)):
+            for row, i in enumerate(group.index):
+                n = len(self.logs[i])
+                out[i] = {"force": np.asarray(pred.force[row, :n]),
+                          "contributions": np.asarray(pred.contributions[row, :n]),
+                          "pressure_a": np.asarray(pred.pressure_a[row, :n]),
+                          "pressure_b": np.asarray(pred.pressure_b[row, :n])}
+        return out  # type: ignore[return-value]
+
+    def nuisance_template(self, theta=None) -> dict[str, np.ndarray]:
+        _, nuisances = self.unpack(self.pack(self.model) if theta is None else theta)
+        return {k: np.asarray(v) for k, v in nuisances.items()}
+
+    @property
+    def par_fixed(self) -> set[str]:
+        """Model parameter names held fixed."""
+        free = set(self.par.names)
+        return {n for _, _, names in named_params(self.model) for n in names} - free
+
+    def par_scale(self, name: str) -> float:
+        return find_param(self.model, name).scale
+
+    def par_unit(self, name: str) -> str:
+        return find_param(self.model, name).unit
+
+    def cached(self, key, factory):
+        """A compiled function for this problem, made once per ``key`` by ``factory()``
+        (solvers, Jacobians: repeated fits and summaries reuse the compilation)."""
+        if key not in self._compiled:
+            self._compiled[key] = factory()
+        return self._compiled[key]
+
+
+def _pad(a, n: int, *, fill: float | None = None) -> np.ndarray:
+    a = np.asarray(a, dtype=float)
+    if a.shape[0] == n:
+        return a
+    value = a[-1] if fill is None else fill
+    return np.concatenate([a, np.full(n - a.shape[0], value)])
+
+
+def _pad_drive(drive: Drive, n: int) -> Drive:
+    """Extend a drive to ``n`` samples by holding the last state (time keeps ticking)."""
+    m = len(drive)
+    if m == n:
+        return dataclasses.replace(drive, name="") if drive.name else drive
+    dt = float(drive.time[-1] - drive.time[-2]) if m > 1 else 1.0
+    time = np.concatenate([np.asarray(drive.time), float(drive.time[-1]) + dt * np.arange(1, n - m + 1)])
+    return dataclasses.replace(
+        drive, name="", time=jnp.asarray(time),
+        displacement=jnp.asarray(_pad(drive.displacement, n)),
+        pressure_a=jnp.asarray(_pad(drive.pressure_a, n)),
+        pressure_b=jnp.asarray(_pad(drive.pressure_b, n)),
+        still=jnp.asarray(_pad(drive.still, n)))
