@@ -11,25 +11,27 @@ A program is a small immutable object with two methods (the :class:`Program` pro
 
 Programs in engineering units (mm, mm/s, s, Hz), every option keyword-only:
 
-=================== ===========================================================================
-:class:`Ramp`        constant-rate ramp over a distance
-:class:`Pause`       standstill of a given duration
-:class:`Waypoints`   constant-rate legs through given positions, optional pauses at the joints
-:class:`TriangleCycles` triangle cycles ``0 -> +A -> -A -> 0`` of growing amplitude (the
-                     paper's Fig. 4 experiment)
-:class:`NestedLoops` a large cycle with nested minor loops on both branches (return-point
-                     memory)
-:class:`SineSweep`   sine of fixed or swept frequency with a smooth fade in and out
-:class:`Concat`      programs one after the other (also ``a + b``)
-=================== ===========================================================================
+- :class:`Ramp`: constant-rate ramp over a distance;
+- :class:`Pause`: standstill of a given duration;
+- :class:`Waypoints`: constant-rate legs through given positions, optional pauses at the
+  joints (at reversals, or where the motion passes a joint without reversing);
+- :class:`TriangleCycles`: triangle cycles ``0 -> +A -> -A -> 0`` of growing amplitude (the
+  paper's Fig. 4 experiment);
+- :class:`NestedLoops`: a major cycle with nested minor loops on both branches (return-point
+  memory);
+- :class:`SineSweep`: sine of fixed or swept frequency, fading in and out so that it starts and
+  ends at rest;
+- :class:`Concat`: programs one after the other (also ``a + b``); each part continues from
+  where the previous one ended. It uses the parts' displacements only, so a part of one's own
+  making must follow the :class:`Program` protocol's grid.
 
 Piecewise-linear programs put every joint (reversal, pause start and end) *on* a sample: each
-leg and each pause lasts a whole number of sample periods, so a leg's speed differs from the
-requested rate by less than half a sample period over the leg. That is what makes reversal
-points and pause lengths exact in the sampled data.
+leg and each pause lasts a whole number of sample periods, so a leg takes at most half a
+sample period more or less than ``distance / rate``. That is what makes reversal points and
+pause lengths exact in the sampled data.
 
 >>> t, x = TriangleCycles(amplitudes_mm=(0.1, 0.5), rate_mm_s=1.0).sample(1000.0)
->>> round(x.max() * 1e3, 9), round(x.min() * 1e3, 9)
+>>> float(x.max() * 1e3), float(x.min() * 1e3)
 (0.5, -0.5)
 >>> program = Ramp(distance_mm=0.2, rate_mm_s=1.0) + Pause(duration_s=2.0)
 >>> program.describe()["program"]
@@ -110,7 +112,8 @@ class _Base:
         return Concat(parts=(self, other))
 
     def describe(self) -> dict[str, object]:
-        options = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}  # type: ignore[arg-type]
+        options = {f.name: getattr(self, f.name)
+                   for f in dataclasses.fields(self)}  # type: ignore[arg-type]
         return {"program": self.kind, **{k: list(v) if isinstance(v, tuple) else v
                                          for k, v in options.items()}}
 
@@ -162,16 +165,8 @@ class Pause(_Base):
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
 class _Legs(_Base):
-    """Constant-rate legs from 0 through :meth:`path_mm`, optional pauses at the joints.
-
-    Args:
-        rate_mm_s: speed along every leg.
-        pause_s: pause durations inserted at the joints selected by ``pause_at``, used in
-            turn and repeated cyclically (``(0.5, 2.0)`` pauses 0.5 s, 2 s, 0.5 s ...);
-            empty (default) for none.
-        pause_at: ``"reversals"`` (where the direction changes) or ``"passes"`` (joints the
-            motion passes without reversing, such as the zero crossings of triangle cycles).
-    """
+    """Constant-rate legs from 0 through :meth:`path_mm`, optional pauses at the joints
+    (options as documented on :class:`Waypoints`)."""
 
     rate_mm_s: float
     pause_s: Sequence[float] = ()
@@ -219,7 +214,12 @@ class Waypoints(_Legs):
 
     Args:
         points_mm: the positions visited in order; consecutive points must differ.
-        rate_mm_s, pause_s, pause_at: see :class:`_Legs` (speed; pauses at the joints).
+        rate_mm_s: speed along every leg.
+        pause_s: pause durations inserted at the joints selected by ``pause_at``, used in
+            turn and repeated cyclically (``(0.5, 2.0)`` pauses 0.5 s, 2 s, 0.5 s ...);
+            empty (default) for none.
+        pause_at: ``"reversals"`` (where the direction changes) or ``"passes"`` (joints the
+            motion passes without reversing, such as the zero crossings of triangle cycles).
     """
 
     kind: ClassVar[str] = "waypoints"
@@ -240,8 +240,8 @@ class TriangleCycles(_Legs):
     Args:
         amplitudes_mm: cycle amplitudes, typically growing (``(0.05, 0.1, 0.2, 0.5, 1.0)``).
         cycles: how many cycles at each amplitude.
-        rate_mm_s, pause_s, pause_at: see :class:`_Legs`; ``pause_at="passes"`` pauses at the
-            zero crossings, i.e. mid-stroke of each cycle.
+        rate_mm_s, pause_s, pause_at: as for :class:`Waypoints`; ``pause_at="passes"`` pauses
+            at the zero crossings, i.e. mid-stroke of each cycle.
     """
 
     kind: ClassVar[str] = "triangle_cycles"
@@ -277,7 +277,7 @@ class NestedLoops(_Legs):
             the major cycle.
         centre_mm: where on each branch the minor loops start.
         cycles: number of major cycles.
-        rate_mm_s, pause_s, pause_at: see :class:`_Legs`.
+        rate_mm_s, pause_s, pause_at: as for :class:`Waypoints`.
     """
 
     kind: ClassVar[str] = "nested_loops"
