@@ -30,7 +30,6 @@ import os
 import re
 from collections.abc import Mapping
 from pathlib import Path
-from types import MappingProxyType
 
 import numpy as np
 from scipy import signal
@@ -101,7 +100,7 @@ class SimulatedLog:
 
     Attributes:
         log: the noisy log as a rig would record it (what loading a written copy returns).
-        truth: JSON-able ground truth: ``name``, ``model``, ``parameters`` (flat name ->
+        truth: ground truth as plain JSON types (``json.dumps`` takes it): ``name``, ``model``, ``parameters`` (flat name ->
             ``value`` in display units, ``unit``), ``settings`` (static term settings, SI),
             ``rig`` (sidecar keys), ``noise``, ``seed``, ``rate_hz``, ``samples``,
             ``program`` (its description), ``derived`` (when :mod:`fitstiff.derived` is
@@ -112,7 +111,7 @@ class SimulatedLog:
     """
 
     log: Log
-    truth: Mapping[str, object]
+    truth: dict[str, object]
     model: Model
     drive: Drive
     prediction: Prediction
@@ -178,8 +177,8 @@ def simulate(model_or_spec: Model | str, program: Program, *, rig: Rig,
         **_derived(model, drive),
         "force_noise_free_N": clean_force,
     }
-    return SimulatedLog(log=log, truth=MappingProxyType(to_jsonable(truth)), model=model,
-                        drive=drive, prediction=prediction)
+    return SimulatedLog(log=log, truth=to_jsonable(truth), model=model, drive=drive,
+                        prediction=prediction)
 
 
 def _with_display_values(model: Model, values: Mapping[str, float]) -> Model:
