@@ -25,6 +25,25 @@ from scipy.optimize import isotonic_regression
 
 __all__ = ["denoise_displacement"]
 
+_SEARCH = 3   # samples either side of a reversal index searched for the raw extremum
+
+
+def _extrema(x: np.ndarray, reversals: np.ndarray) -> np.ndarray:
+    """Each reversal moved to the raw extremum within ``_SEARCH`` samples.
+
+    The segmentation places reversals on a median-filtered signal, whose peaks are flattened
+    by a sample; cutting there would make the isotonic fit average the true peak with its
+    neighbour and shave the turning point.
+    """
+    out = []
+    for r in reversals:
+        lo, hi = max(r - _SEARCH, 0), min(r + _SEARCH + 1, x.shape[0])
+        window = x[lo:hi]
+        after = x[min(hi + _SEARCH, x.shape[0] - 1)]
+        is_max = after < x[r]
+        out.append(lo + int(np.argmax(window) if is_max else np.argmin(window)))
+    return np.asarray(out, dtype=int)
+
 
 def denoise_displacement(displacement: np.ndarray, reversals: np.ndarray) -> np.ndarray:
     """Monotone least-squares fit of ``displacement`` between the ``reversals`` (indices).
@@ -35,7 +54,8 @@ def denoise_displacement(displacement: np.ndarray, reversals: np.ndarray) -> np.
     """
     x = np.asarray(displacement, dtype=float)
     n = x.shape[0]
-    cuts = np.unique(np.concatenate([[0], np.asarray(reversals, dtype=int), [n - 1]]))
+    cuts = np.unique(np.concatenate([[0], _extrema(x, np.asarray(reversals, dtype=int)),
+                                     [n - 1]]))
     out = x.copy()
     for start, stop in zip(cuts[:-1], cuts[1:]):
         segment = x[start:stop + 1]

@@ -64,9 +64,9 @@ class Problem:
     Args:
         logs: the logs to fit jointly (seal and chamber parameters shared).
         model: spec string or a built model (its values are the starting point).
-        fix: parameter names to hold at their current value (``{"n": 1.4}`` sets and fixes;
-            a plain iterable of names fixes at the model's values). Nuisance names
-            ``offset`` / ``friction_state0`` fix those for every log.
+        fix: parameters to hold: names (held at the model's value) or a mapping name ->
+            SI value (``{"n": 1.4}``; ``None`` holds the model's value). Nuisance names
+            ``offset`` / ``friction_state0`` fix those for every log (at 0).
         denoise: replace each displacement by its reversal-preserving monotone estimate
             (:mod:`fitstiff.denoise`) before driving the model. ``"auto"``: when the
             estimated displacement noise is above 0.05 um.
@@ -77,7 +77,7 @@ class Problem:
     """
 
     def __init__(self, logs: Sequence[Log], model: Model | str, *,
-                 fix: Mapping[str, float] | Iterable[str] = (), denoise: bool | str = "auto",
+                 fix: Mapping[str, float | None] | Iterable[str] = (), denoise: bool | str = "auto",
                  sample_range: tuple[int | None, int | None] | None = None,
                  weights: Mapping[str, float] | None = None, skip: int = 0):
         if not logs:
@@ -99,12 +99,13 @@ class Problem:
                 drive = eqx.tree_at(lambda d: d.displacement, drive, jnp.asarray(x))
             self.drives.append(drive)
         built = build_model(model, drives=self.drives) if isinstance(model, str) else model
-        fixed_values = dict(fix) if isinstance(fix, Mapping) else {}
+        fixed_values = ({k: v for k, v in fix.items() if v is not None}
+                        if isinstance(fix, Mapping) else {})
         fixed_names = set(fix)
         self.fixed_nuisances = fixed_names & set(NUISANCES)
         model_fixed = fixed_names - set(NUISANCES)
-        if fixed_values:
-            model_values = {k: v for k, v in fixed_values.items() if k in model_fixed}
+        model_values = {k: v for k, v in fixed_values.items() if k in model_fixed}
+        if model_values:
             built = Parameterization(built).with_values(built, model_values, where="--fix")
         self.model = built
         self.par = Parameterization(built, fixed=model_fixed)

@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
+if str(REPO) not in sys.path:   # small versions of the benchmarks run in the suite
+    sys.path.insert(0, str(REPO))
 SHARED = REPO.parent / "shared"
 REALDATA = SHARED / "realdata" / "pneumatic-seal-friction"
 

@@ -1,0 +1,141 @@
+"""``fitstiff fit``: least-squares fit of a model to one or more logs (joint)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+from fitstiff.cli._common import add_log_arguments, add_out_argument, logs_from_args
+from fitstiff.comparison import compare
+from fitstiff.errors import InputError
+from fitstiff.fitting import SOLVERS, fit
+from fitstiff.model import build_model
+from fitstiff.output import OutputDir, to_jsonable
+from fitstiff.params import find_param
+from fitstiff.segmentation import REGIONS
+
+__all__ = ["add_parser", "run", "parse_fix", "fit_options"]
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    parser = subparsers.add_parser(
+        "fit", help="least-squares fit, joint over several logs",
+        description="Fit a model (sum of terms) jointly to the logs with optimistix least "
+                    "squares. Seal and chamber parameters are shared; each log has its own "
+                    "force offset and initial friction state. Writes fit.json and a manifest.")
+    add_log_arguments(parser)
+    add_fit_arguments(parser)
+    parser.add_argument("--compare", metavar="SPEC,SPEC,...",
+                        help="fit several models to the same logs and rank them (held-out "
+                             "error over logs with two logs or more, else BIC); writes "
+                             "compare.json")
+    parser.add_argument("--json", action="store_true", help="print fit.json to stdout")
+    add_out_argument(parser)
+    parser.set_defaults(func=run)
+    return parser
+
+
+def add_fit_arguments(parser: argparse.ArgumentParser) -> None:
+    """Model and solver options shared by ``fit``, ``posterior`` and ``diagnose``."""
+    group = parser.add_argument_group("model and solver")
+    group.add_argument("--model", default="chamber+dahl", metavar="SPEC",
+                       help="terms joined by '+' (default chamber+dahl)")
+    group.add_argument("--fix", action="append", default=[], metavar="NAME[=VALUE]",
+                       help="hold a parameter (value in its display unit, e.g. n=1.4 or "
+                            "sigma0=40); 'offset' / 'friction_state0' fix those nuisances")
+    group.add_argument("--solver", choices=sorted(SOLVERS), default="lm")
+    group.add_argument("--starts", type=int, default=1, metavar="N",
+                       help="random restarts around the data-driven start (default 1)")
+    group.add_argument("--seed", type=int, default=0)
+    group.add_argument("--max-steps", type=int, default=400, metavar="N")
+    group.add_argument("--denoise", choices=("auto", "on", "off"), default="auto",
+                       help="reversal-preserving displacement denoising (default: auto, when "
+                            "the displacement noise is above 0.05 um)")
+    group.add_argument("--range", metavar="START:STOP",
+                       help="sample range used in every log (Python slice, e.g. 100:)")
+    group.add_argument("--skip", type=int, default=0, metavar="N",
+                       help="warm-up samples that drive the model but weigh 0")
+    group.add_argument("--weight", action="append", default=[], metavar="REGION=W",
+                       help=f"extra weight of a region ({', '.join(REGIONS[:4])})")
+
+
+def parse_fix(items, spec: str) -> dict[str, float | None]:
+    """``["n=1.4", "offset"]`` -> ``{"n": 1.4, "offset": None}`` (SI; None: hold the start
+    value)."""
+    model = build_model(spec)
+    values: dict[str, float | None] = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        if not sep:
+            values[name] = None
+            continue
+        try:
+            number = float(value)
+        except ValueError:
+            raise InputError(None, f"--fix {item}", f"value {value!r} is not a number",
+                             "write NAME=VALUE in the parameter's display unit") from None
+        try:
+            scale = find_param(model, name).scale
+        except KeyError:
+            raise InputError(None, f"--fix {item}", f"'{name}' is not a parameter of "
+                             f"'{spec}'", "see the parameter names in fit.json") from None
+        values[name] = number * scale
+    return values
+
+
+def _range(text):
+    if not text:
+        return None
+    start, sep, stop = text.partition(":")
+    try:
+        if not sep:
+            raise ValueError
+        return (int(start) if start else None, int(stop) if stop else None)
+    except ValueError:
+        raise InputError(None, f"--range {text}", "is not START:STOP",
+                         "write e.g. 100:4000 or 100:") from None
+
+
+def _weights(items):
+    out = {}
+    for item in items:
+        region, sep, value = item.partition("=")
+        try:
+            out[region] = float(value)
+            if not sep:
+                raise ValueError
+        except ValueError:
+            raise InputError(None, f"--weight {item}", "is not REGION=W",
+                             "write e.g. presliding=4") from None
+    return out
+
+
+def fit_options(args) -> dict[str, object]:
+    """Keyword arguments of :func:`fitstiff.fitting.fit` from the parsed options."""
+    return {"solver": args.solver, "starts": args.starts, "seed": args.seed,
+            "max_steps": args.max_steps,
+            "denoise": {"auto": "auto", "on": True, "off": False}[args.denoise],
+            "sample_range": _range(args.range), "skip": args.skip,
+            "weights": _weights(args.weight)}
+
+
+def run(args) -> int:
+    logs = logs_from_args(args)
+    options = fit_options(args)
+    out = OutputDir(args.out, inputs=[log.path for log in logs if log.path],
+                    seed=args.seed,
+                    options={"model": args.model, "fix": args.fix, **options})
+    if args.compare:
+        specs = [s for s in args.compare.split(",") if s]
+        comparison, _ = compare(logs, specs, **options)
+        print(comparison.table())
+        out.write_json("compare.json", comparison.to_dict())
+    result = fit(logs, args.model, fix=parse_fix(args.fix, args.model), **options)
+    out.write_json("fit.json", result.to_dict())
+    out.finish()
+    if args.json:
+        print(json.dumps(to_jsonable(result.to_dict()), indent=2))
+    else:
+        print(result.table())
+        print(f"wrote {out.path / 'fit.json'}")
+    return 0

@@ -1,0 +1,86 @@
+"""Model comparison: information criteria and held-out error over logs.
+
+Held-out error (leave one log out): fit the shared parameters on every other log, then
+predict the left-out log with them, fitting only that log's own nuisances (force offset and
+initial friction state), and take the RMS force error. It rewards models that generalise
+across logs, not models with more parameters.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from fitstiff.fitting import FitResult, fit, fit_problem
+from fitstiff.log import Log
+from fitstiff.model import Model
+from fitstiff.params import named_params
+from fitstiff.problem import Problem
+
+__all__ = ["Comparison", "compare", "held_out_rms", "predict_held_out"]
+
+
+def predict_held_out(log: Log, model: Model, **problem_kw) -> tuple[float, FitResult]:
+    """RMS force error (N) of ``model`` on ``log`` with only the log's nuisances fitted."""
+    names = [n for _, _, ns in named_params(model) for n in ns]
+    problem = Problem([log], model, fix=names, **problem_kw)
+    result = fit_problem(problem)
+    return result.rms_N, result
+
+
+def held_out_rms(logs: Sequence[Log], model: Model | str, **fit_kw) -> list[float]:
+    """Leave-one-log-out RMS force errors (N), one per log (needs two logs or more)."""
+    if len(logs) < 2:
+        raise ValueError("held-out error over logs needs at least two logs")
+    problem_kw = {k: fit_kw[k] for k in ("denoise", "sample_range", "weights", "skip")
+                  if k in fit_kw}
+    out = []
+    for i in range(len(logs)):
+        train = [log for j, log in enumerate(logs) if j != i]
+        trained = fit(train, model, **fit_kw)
+        rms, _ = predict_held_out(logs[i], trained.model, **problem_kw)
+        out.append(rms)
+    return out
+
+
+@dataclasses.dataclass(frozen=True)
+class Comparison:
+    """Several models fitted to the same logs, ranked (best first)."""
+
+    rows: tuple[dict[str, object], ...]
+    ranked_by: str
+
+    def to_dict(self) -> dict[str, object]:
+        return {"ranked_by": self.ranked_by, "models": list(self.rows)}
+
+    def table(self) -> str:
+        lines = [f"{'model':<36}{'params':>7}{'rms N':>10}{'AIC':>14}{'BIC':>14}"
+                 f"{'held-out N':>12}  converged"]
+        for r in self.rows:
+            held = r["heldout_rms_N"]
+            lines.append(f"{r['model']:<36}{r['n_params']:>7}{r['rms_N']:>10.4g}"
+                         f"{r['aic']:>14.6g}{r['bic']:>14.6g}"
+                         f"{'n/a' if held is None else f'{held:.4g}':>12}  {r['converged']}")
+        lines.append(f"ranked by {self.ranked_by}")
+        return "\n".join(lines)
+
+
+def compare(logs: Sequence[Log], specs: Sequence[str], **fit_kw) -> tuple[Comparison,
+                                                                           list[FitResult]]:
+    """Fit every spec to ``logs``; rank by held-out RMS (two logs or more), else by BIC."""
+    results, rows = [], []
+    for spec in specs:
+        result = fit(logs, spec, **fit_kw)
+        held = held_out_rms(logs, spec, **fit_kw) if len(logs) >= 2 else None
+        results.append(result)
+        rows.append({"model": result.model.spec, "n_params": result.n_params,
+                     "rms_N": result.rms_N, "aic": result.aic, "bic": result.bic,
+                     "heldout_rms_N": (math.sqrt(float(np.mean(np.square(held))))
+                                       if held else None),
+                     "heldout_rms_per_log_N": held, "converged": result.converged})
+    key = "heldout_rms_N" if len(logs) >= 2 else "bic"
+    order = sorted(range(len(rows)), key=lambda i: rows[i][key])
+    return (Comparison(tuple(rows[i] for i in order), key), [results[i] for i in order])
