@@ -47,6 +47,8 @@ class Drive(eqx.Module):
     p_amb: jnp.ndarray           # Pa abs
     friction_state0: jnp.ndarray  # initial friction state, fraction of saturation in (-1, 1)
     force_offset: jnp.ndarray    # N, added to the predicted force
+    #: smoothed velocity (m/s) for rate-dependent terms; None: the difference quotient
+    velocity: jnp.ndarray | None = None
     modes: tuple[str, str] = eqx.field(static=True, default=("closed", "closed"))
     #: per chamber: the logged pressure is an observation of a closed (modelled) chamber
     observed: tuple[bool, bool] = eqx.field(static=True, default=(False, False))

@@ -378,7 +378,7 @@ def fit_problem(problem: Problem, *, solver: str = "lm", starts: int = 1, seed: 
 def _summarise(problem: Problem, theta, *, converged: bool, message: str, steps: int,
                solver: str, starts: Mapping[str, int]) -> FitResult:
     ev = problem.cached("summary", lambda: _summary_functions(problem))
-    residuals, jac, values, dphys, d0, g0 = (np.asarray(a) for a in ev(theta))
+    residuals, jac, eiv, values, dphys, d0, g0 = (np.asarray(a) for a in ev(theta))
     n_data, n_par = problem.n_data, problem.size
     cost = float(residuals @ residuals)
     s2 = cost / max(n_data - n_par, 1)
@@ -390,7 +390,9 @@ def _summarise(problem: Problem, theta, *, converged: bool, message: str, steps:
     _, sv, vt = np.linalg.svd(jac, full_matrices=False)
     keep = sv > _SINGULAR * sv[0] if sv.size else np.zeros(0, bool)
     inv = np.where(keep, 1.0 / np.where(keep, sv, 1.0) ** 2, 0.0)
-    cov_theta = (vt.T * inv) @ vt * s2 * inflation
+    jtj_inv = (vt.T * inv) @ vt
+    # force noise (AR(1)-inflated) + turning-point errors propagated through the scan
+    cov_theta = jtj_inv * s2 * inflation + jtj_inv @ (eiv.T @ eiv) @ jtj_inv
     names = problem.names
     warnings = []
     undetermined = np.zeros(n_par, dtype=bool)
@@ -485,9 +487,15 @@ def _summary_functions(problem: Problem):
 
     @jax.jit
     def evaluate(theta):
-        return (problem.residuals(theta), jax.jacfwd(problem.residuals)(theta),
-                physical(theta), jax.jacfwd(physical)(theta), derived_vec(theta),
-                jax.jacfwd(derived_vec)(theta))
+        jac = jax.jacfwd(problem.residuals)(theta)
+        # errors in variables at the turning points: C = B^T J (one VJP per parameter),
+        # B = d(residuals)/d(displacement), scaled by the displacement noise at reversals
+        _, vjp = jax.vjp(lambda xs: problem.residuals(theta, xs), problem.displacements())
+        scales = problem.reversal_noise()
+        eiv = jax.vmap(lambda col: jnp.concatenate(
+            [(c * s).ravel() for c, s in zip(vjp(col)[0], scales)]), in_axes=1, out_axes=1)(jac)
+        return (problem.residuals(theta), jac, eiv, physical(theta),
+                jax.jacfwd(physical)(theta), derived_vec(theta), jax.jacfwd(derived_vec)(theta))
 
     return evaluate
 

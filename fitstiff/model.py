@@ -123,7 +123,7 @@ class Model(eqx.Module):
         t = drive.time
         dt = jnp.diff(t, prepend=2 * t[0] - t[1])
         dx = jnp.diff(x, prepend=x[0])
-        v = dx / dt
+        v = dx / dt if drive.velocity is None or self.of_kind("input") else drive.velocity
         dv = jnp.diff(v, append=v[-1])
         dt_mid = 0.5 * (dt + jnp.append(dt[1:], dt[-1]))
         a = dv / dt_mid

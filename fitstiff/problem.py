@@ -25,7 +25,7 @@ import equinox as eqx
 import numpy as np
 
 from fitstiff._jax import jax, jnp
-from fitstiff.denoise import denoise_displacement
+from fitstiff.denoise import denoise_displacement, reversal_samples, segment_velocity
 from fitstiff.drive import Drive, drive_from_log
 from fitstiff.errors import InputError
 from fitstiff.log import Log
@@ -97,6 +97,9 @@ class Problem:
             if den:
                 x = denoise_displacement(log.displacement, seg.reversals)
                 drive = eqx.tree_at(lambda d: d.displacement, drive, jnp.asarray(x))
+                if log.time is not None:
+                    v = segment_velocity(x, log.time, seg.reversals, noise=seg.noise)
+                    drive = dataclasses.replace(drive, velocity=jnp.asarray(v))
             self.drives.append(drive)
         built = build_model(model, drives=self.drives) if isinstance(model, str) else model
         fixed_values = ({k: v for k, v in fix.items() if v is not None}
@@ -232,9 +235,31 @@ class Problem:
         return lj
 
     # -- evaluation -----------------------------------------------------------------------
-    def _group_drive(self, group: _Group, nuisances):
+    def displacements(self) -> tuple:
+        """The displacement each group drives the model with, ``(L, N)`` per group."""
+        return tuple(g.drive.displacement for g in self._groups)
+
+    def reversal_noise(self) -> tuple:
+        """Per group ``(L, N)``: the displacement noise (m) at each log's reversal samples, 0
+        elsewhere. An error in a turning point shifts the whole branch after it; this is
+        the errors-in-variables part of the covariance (:mod:`fitstiff.fitting`)."""
+        out = []
+        for g in self._groups:
+            rows = []
+            for i in g.index:
+                row = np.zeros(g.force.shape[1])
+                x = np.asarray(self.drives[i].displacement)
+                row[reversal_samples(x, self.segmentations[i].reversals)] = \
+                    self.displacement_noise[i]
+                rows.append(row)
+            out.append(jnp.asarray(np.stack(rows)))
+        return tuple(out)
+
+    def _group_drive(self, group: _Group, nuisances, displacement=None):
         idx = jnp.asarray(group.index)
         drive = group.drive
+        if displacement is not None:
+            drive = eqx.tree_at(lambda d: d.displacement, drive, displacement)
         if "offset" in nuisances:
             drive = eqx.tree_at(lambda d: d.force_offset, drive, nuisances["offset"][idx])
         if "friction_state0" in nuisances:
@@ -242,15 +267,18 @@ class Problem:
                                 nuisances["friction_state0"][idx])
         return drive
 
-    def predictions(self, theta):
-        """Per group: the vmap-ed :class:`~fitstiff.model.Prediction` (leading log axis)."""
+    def predictions(self, theta, displacements=None):
+        """Per group: the vmap-ed :class:`~fitstiff.model.Prediction` (leading log axis).
+        ``displacements`` (shaped as :meth:`displacements`) replaces the model input."""
         model, nuisances = self.unpack(theta)
-        return [jax.vmap(model.run)(self._group_drive(g, nuisances)) for g in self._groups]
+        displacements = displacements or (None,) * len(self._groups)
+        return [jax.vmap(model.run)(self._group_drive(g, nuisances, x))
+                for g, x in zip(self._groups, displacements)]
 
-    def residuals(self, theta):
+    def residuals(self, theta, displacements=None):
         """Whitened residual vector (model - data), padded entries exactly 0."""
         parts = []
-        for group, pred in zip(self._groups, self.predictions(theta)):
+        for group, pred in zip(self._groups, self.predictions(theta, displacements)):
             parts.append(((pred.force - group.force) * group.weight).ravel())
             for c, measured in enumerate(group.pressure):
                 if measured is None:
@@ -316,4 +344,6 @@ def _pad_drive(drive: Drive, n: int) -> Drive:
         displacement=jnp.asarray(_pad(drive.displacement, n)),
         pressure_a=jnp.asarray(_pad(drive.pressure_a, n)),
         pressure_b=jnp.asarray(_pad(drive.pressure_b, n)),
-        still=jnp.asarray(_pad(drive.still, n)))
+        still=jnp.asarray(_pad(drive.still, n)),
+        velocity=None if drive.velocity is None else jnp.asarray(_pad(drive.velocity, n,
+                                                                       fill=0.0)))

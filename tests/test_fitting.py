@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from conftest import REALDATA
 
-from benchmarks.recovery import PROGRAM, dataset, score
+from benchmarks.recovery import dataset, score
 from fitstiff.cli import main
 from fitstiff.comparison import compare
 from fitstiff.fitting import fit
@@ -104,7 +104,7 @@ def test_cli_writes_fit_json_and_leaves_inputs_alone(tmp_path, capsys):
     logs, _, _ = dataset("dahl", 6)
     paths = []
     for log in logs[:2]:
-        paths.append(write_log(log, tmp_path / f"{log.name}.csv"))
+        paths.append(write_log(log, tmp_path / f"{log.name}.csv")[0])
     before = {p: hashlib.sha256(p.read_bytes()).hexdigest() for p in paths}
     out = tmp_path / "out"
     code = main(["fit", *map(str, paths), "--model", "chamber+dahl", "--fix", "n=1.3",
@@ -133,7 +133,7 @@ def test_cli_writes_fit_json_and_leaves_inputs_alone(tmp_path, capsys):
 ])
 def test_cli_bad_options_exit_2_with_one_line(tmp_path, capsys, argv, fragment):
     log = _single(1.0, seed=8)
-    path = write_log(log, tmp_path / "a.csv")
+    path = write_log(log, tmp_path / "a.csv")[0]
     code = main(["fit", str(path), "--out", str(tmp_path / "o"), *argv])
     err = capsys.readouterr().err
     assert code == 2

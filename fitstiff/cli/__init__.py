@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 
 from fitstiff import __version__
@@ -43,7 +44,24 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _enable_compilation_cache() -> None:
+    """Persistent JAX compilation cache, so a second run of a command skips compilation.
+
+    ``FITSTIFF_CACHE_DIR`` sets the directory (default ``~/.cache/fitstiff/jax``); an empty
+    value turns the cache off.
+    """
+    path = os.environ.get("FITSTIFF_CACHE_DIR",
+                          os.path.join(os.path.expanduser("~"), ".cache", "fitstiff", "jax"))
+    if not path:
+        return
+    from fitstiff._jax import jax
+
+    jax.config.update("jax_compilation_cache_dir", path)
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.2)
+
+
 def main(argv: list[str] | None = None) -> int:
+    _enable_compilation_cache()
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):

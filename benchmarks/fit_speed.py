@@ -1,0 +1,144 @@
+"""Fit speed: fitstiff against the reference a user would otherwise write, in the same run.
+
+One 4 000-sample ``chamber+dahl`` log (paper cylinder, 6 bar, 1 kHz, realistic noise).
+
+- **fitstiff warm**: ``fit_problem`` on a prepared problem whose solver is already compiled
+  (data-driven start, Levenberg-Marquardt with exact Jacobians, covariance and summary).
+- **reference**: the same model as a NumPy per-sample loop (exact Dahl step, exact
+  polytropic chamber), fitted with ``scipy.optimize.least_squares`` (finite-difference
+  Jacobian) from the same start, to the same force and pressure residuals.
+- **cold CLI**: ``fitstiff fit`` as a subprocess (import, load, compile, fit, write), twice:
+  the second run uses JAX's persistent compilation cache.
+
+    python benchmarks/fit_speed.py [--json out.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from fitstiff.fitting import fit_problem, initial_guess
+from fitstiff.log import Rig
+from fitstiff.problem import Problem
+from fitstiff.programs import TriangleCycles
+from fitstiff.simulate import Noise, simulate, write_log
+
+RIG = Rig.from_mapping({"bore_mm": 32, "stroke_mm": 700, "start_position_mm": 350,
+                        "supply_bar": 6})
+
+
+def make_log():
+    program = TriangleCycles(rate_mm_s=2.0, amplitudes_mm=(0.05, 0.1, 0.2, 0.5, 1.0),
+                             cycles=1)
+    sim = simulate("chamber+dahl", program, rig=RIG, params={"sigma0": 40, "Fc": 18, "n": 1.3},
+                   noise=Noise(force_N=0.2, displacement_um=1.0, pressure_mbar=2.0),
+                   seed=1, name="bench", rate_hz=1000 * 4000 / 3900)
+    log = sim.log.slice(0, 4000)
+    return log
+
+
+def reference_residuals(p, x, force, p_a, p_b, rig, sigma_f, sigma_p):
+    """NumPy per-sample loop: exact Dahl + exact polytropic chamber (what a user writes)."""
+    n, sigma0, fc, offset, state0 = p
+    area = rig.area_a
+    l_a0 = rig.start_position
+    l_b0 = rig.stroke - rig.start_position
+    p0 = rig.supply_pressure + rig.ambient_pressure
+    amb = rig.ambient_pressure
+    out_f = np.empty_like(x)
+    out_pa = np.empty_like(x)
+    out_pb = np.empty_like(x)
+    f = state0 * fc
+    prev = x[0]
+    for k in range(x.shape[0]):
+        dx = x[k] - prev
+        prev = x[k]
+        d = math.copysign(1.0, dx) if dx != 0 else 0.0
+        f = d * fc + (f - d * fc) * math.exp(-sigma0 * abs(dx) / fc)
+        pa = p0 * (l_a0 / (l_a0 + x[k])) ** n
+        pb = p0 * (l_b0 / (l_b0 - x[k])) ** n
+        out_f[k] = f + area * (pb - amb) - area * (pa - amb) + offset
+        out_pa[k] = pa
+        out_pb[k] = pb
+    return np.concatenate([(out_f - force) / sigma_f, (out_pa - p_a) / sigma_p,
+                           (out_pb - p_b) / sigma_p])
+
+
+def time_reference(problem, start):
+    log = problem.logs[0]
+    x = np.asarray(problem.drives[0].displacement)   # the same (denoised) input
+    args = (x, log.force, log.pressure_a, log.pressure_b, log.rig, problem.force_noise[0],
+            problem.pressure_noise[0]["a"])
+    t0 = time.perf_counter()
+    sol = least_squares(reference_residuals, start, args=args, x_scale="jac")
+    return time.perf_counter() - t0, sol
+
+
+def cli_seconds(csv: Path, out: Path, cache: Path) -> float:
+    env = dict(os.environ, FITSTIFF_CACHE_DIR=str(cache))
+    t0 = time.perf_counter()
+    subprocess.run([sys.executable, "-m", "fitstiff", "fit", str(csv), "--model",
+                    "chamber+dahl", "--out", str(out)], check=True, env=env,
+                   stdout=subprocess.DEVNULL)
+    return time.perf_counter() - t0
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--json", metavar="FILE")
+    args = parser.parse_args()
+    log = make_log()
+    problem = Problem([log], "chamber+dahl")
+    t0 = time.perf_counter()
+    fit_problem(problem)                              # compiles
+    first_seconds = time.perf_counter() - t0
+    warm = []
+    for _ in range(args.repeats):
+        t0 = time.perf_counter()
+        result = fit_problem(problem)
+        warm.append(time.perf_counter() - t0)
+    model0, nuis0 = initial_guess(problem)
+    start = [model0.term("chamber").n, model0.term("dahl").sigma0, model0.term("dahl").Fc,
+             nuis0["offset"][0], nuis0["friction_state0"][0]]
+    ref_seconds, ref = time_reference(problem, np.asarray(start, dtype=float))
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        csv = write_log(log, tmp / "bench.csv")
+        cold = cli_seconds(csv, tmp / "o1", tmp / "cache")
+        second = cli_seconds(csv, tmp / "o2", tmp / "cache")
+    report = {
+        "samples": len(log),
+        "fitstiff_warm_fit_s": float(np.median(warm)),
+        "fitstiff_steps": result.steps,
+        "fitstiff_converged": result.converged,
+        "reference_fit_s": ref_seconds,
+        "reference_evaluations": int(ref.nfev),
+        "speedup_warm_vs_reference": ref_seconds / float(np.median(warm)),
+        "cold_cli_s": cold,
+        "second_cli_s": second,
+        "sigma0_fitstiff_N_per_mm": result.value("sigma0") / 1e3,
+        "sigma0_reference_N_per_mm": float(ref.x[1]) / 1e3,
+        "Fc_fitstiff_N": result.value("Fc"),
+        "Fc_reference_N": float(ref.x[2]),
+        "first_fit_s_incl_compile": first_seconds,
+    }
+    for k, v in report.items():
+        print(f"{k:32s} {v}")
+    if args.json:
+        Path(args.json).write_text(json.dumps(report, indent=2))
+
+
+if __name__ == "__main__":
+    main()
