@@ -37,7 +37,6 @@ from fitstiff.log import Log
 from fitstiff.model import Model
 from fitstiff.params import Parameterization
 from fitstiff.problem import Problem
-from fitstiff.segmentation import REGIONS
 from fitstiff.terms.friction import Coulomb, Dahl, LuGre, MaxwellSlip
 
 __all__ = ["FitResult", "fit", "fit_problem", "initial_guess", "SOLVERS"]
@@ -230,7 +229,6 @@ def initial_guess(problem: Problem) -> tuple[Model, dict[str, np.ndarray]]:
     level = float(np.median(levels))
     tangent = float(np.median([s for s, _ in slopes])) if slopes else None
     reversal_state = float(np.median([r for _, r in slopes])) if slopes else 1.0
-    values: dict[str, float] = {}
     terms = list(model.terms)
     fixed = problem.par_fixed
     first = True
@@ -259,7 +257,6 @@ def initial_guess(problem: Problem) -> tuple[Model, dict[str, np.ndarray]]:
     keep = {n: v for n, v in par_all.values(model).items() if n in fixed}
     if keep:
         guess = Parameterization(guess).with_values(guess, keep)
-    del values
     return guess, {"offset": np.asarray(offsets), "friction_state0": np.asarray(states)}
 
 

@@ -86,19 +86,18 @@ def test_lugre_stiff_is_stable_and_accurate(fs):
     _, _, pred = run("lugre", t, x, values=pars)
     f = np.asarray(pred.force)
     assert np.all(np.isfinite(f))
-    v_of_t = lambda tt: np.interp(tt, t[1:], np.diff(x) / np.diff(t))  # noqa: E731
-    g = lambda v: 15.0 + 3.0 * np.exp(-((v / 2e-3) ** 2))  # noqa: E731
+    def g(v):
+        return 15.0 + 3.0 * np.exp(-((v / 2e-3) ** 2))
 
-    def rhs(tt, z):
-        v = v_of_t(tt)
+    def bristle(tt, z, v):
         return v - 1e6 * abs(v) * z / g(v)
 
     # piecewise constant velocity: integrate each sample interval with a stiff solver
     z, zs = 0.0, [0.0]
     for i in range(1, len(t)):
         v = (x[i] - x[i - 1]) / (t[i] - t[i - 1])
-        sol = solve_ivp(lambda tt, zz: v - 1e6 * abs(v) * zz / g(v), (t[i - 1], t[i]), [z],
-                        method="Radau", rtol=1e-10, atol=1e-14)
+        sol = solve_ivp(bristle, (t[i - 1], t[i]), [z], args=(v,), method="Radau",
+                        rtol=1e-10, atol=1e-14)
         z = sol.y[0][-1]
         zs.append(z)
     zs = np.array(zs)
