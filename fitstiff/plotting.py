@@ -1,0 +1,526 @@
+"""Figures of fits and posteriors (issue 6, the posterior-plot report; DESIGN §4).
+
+Every function draws on a matplotlib :class:`~matplotlib.axes.Axes` that the caller made and
+returns it: no pyplot state, no ``show``, any backend (Agg included). Options are keyword-only.
+Axes carry units: displacement and stroke position in mm, force in N, stiffness in N/mm, time
+in s.
+
+======================================  ===========================================================
+:func:`plot_loop`                       measured force-displacement loop with the model's force,
+                                        optional predictive band, per-term forces and a zoom window
+:func:`reversal_zoom_window`            the displacement window just after a reversal (Fig. 4's
+                                        pre-sliding view), for ``plot_loop(..., zoom=...)``
+:func:`plot_residuals`                  residuals over time or displacement, by segmentation region
+:func:`plot_contributions_over_stroke`  chamber against seal restoring force over the stroke
+                                        (:func:`contributions_over_stroke` gives the numbers)
+:func:`plot_corner`                     corner plot of posterior samples (takes a *Figure*)
+:func:`plot_trace`, :func:`plot_autocorr`  MCMC diagnostics of one parameter's chain
+======================================  ===========================================================
+
+>>> from matplotlib.figure import Figure
+>>> fig = Figure(figsize=(9, 4))
+>>> full, zoomed = fig.subplots(1, 2)
+>>> seg, log = result.problem.segmentations[0], result.problem.logs[0]    # doctest: +SKIP
+>>> force = result.problem.per_log(result.theta)[0]["force"]               # doctest: +SKIP
+>>> plot_loop(full, log, force)                                            # doctest: +SKIP
+>>> plot_loop(zoomed, log, force, zoom=reversal_zoom_window(seg, log))    # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import warnings
+from collections.abc import Mapping, Sequence
+from types import MappingProxyType
+from typing import TYPE_CHECKING, Literal
+
+import numpy as np
+from matplotlib.axes import Axes
+from matplotlib.collections import PolyCollection
+from matplotlib.figure import Figure
+from numpy.typing import ArrayLike
+
+from fitstiff.derived import presliding_curve
+from fitstiff.errors import InputError
+from fitstiff.log import Log, Rig
+from fitstiff.model import Model
+from fitstiff.segmentation import REGIONS, Segmentation
+from fitstiff.stiffness import MM, chamber_stiffness, table_positions
+
+if TYPE_CHECKING:
+    from fitstiff.fitting import FitResult
+
+__all__ = [
+    "REGION_COLORS",
+    "StrokeContributions",
+    "contributions_over_stroke",
+    "plot_autocorr",
+    "plot_contributions_over_stroke",
+    "plot_corner",
+    "plot_loop",
+    "plot_residuals",
+    "plot_trace",
+    "reversal_zoom_window",
+]
+
+REGION_COLORS: Mapping[str, str] = MappingProxyType({
+    "presliding": "tab:orange", "sliding": "tab:blue", "dwell": "tab:red",
+    "standstill": "tab:gray"})
+"""Colour of each motion region (the partition :attr:`Segmentation.region`) in every figure.
+The overlapping ``stroke_end`` flag is not drawn."""
+
+_MEASURED = "0.55"
+_MODEL = "tab:red"
+_BAND = "#f5c2c2"       # opaque, so a band the loop crosses twice is not darker there
+_ZOOM_PAD = 0.05        # of the force span in a zoom window
+_AUTOCORR_RUNS = 50     # emcee's rule of thumb: run at least 50 autocorrelation times
+
+
+# -- loops ----------------------------------------------------------------------------------------
+def plot_loop(ax: Axes, log: Log, prediction: ArrayLike, *,
+              band: tuple[ArrayLike, ArrayLike] | None = None,
+              contributions: Mapping[str, ArrayLike] | None = None,
+              zoom: tuple[float, float] | None = None, label: str = "model") -> Axes:
+    """Measured force over displacement with the model's force on top.
+
+    Args:
+        ax: where to draw.
+        log: the measured log.
+        prediction: the model's force at each sample of ``log`` (N), e.g.
+            ``result.problem.per_log(result.theta)[i]["force"]``.
+        band: ``(lower, upper)`` force at each sample (N), e.g. posterior-predictive
+            quantiles; drawn as a ribbon along the measured path (valid for a path that turns
+            back on itself, unlike ``fill_between``).
+        contributions: label -> force of one term at each sample (N), drawn dashed (e.g. the
+            chamber and the seal from ``per_log(...)["contributions"]``).
+        zoom: ``(low, high)`` displacement window (mm); the force axis fits the measured,
+            predicted and band values inside it. :func:`reversal_zoom_window` picks the window
+            after a reversal, where the pre-sliding curve shows.
+        label: legend label of ``prediction``.
+
+    Returns:
+        ``ax``.
+
+    Raises:
+        InputError: an array whose length is not the log's, a band with ``lower > upper``, a
+            zoom window that is empty or holds no sample.
+    """
+    x = log.displacement / MM
+    force = np.asarray(log.force)
+    model = _per_sample(prediction, log, "prediction")
+    shown = [force, model]
+    if band is not None:
+        lower, upper = _band(band, log)
+        ax.add_collection(_ribbon(x, lower, upper, facecolor=_BAND, label="predictive band"))
+        shown += [lower, upper]
+    ax.plot(x, force, color=_MEASURED, lw=0.8, label="measured")
+    ax.plot(x, model, color=_MODEL, lw=1.2, label=label)
+    for name, values in (contributions or {}).items():
+        ax.plot(x, _per_sample(values, log, f"contribution '{name}'"), lw=1.0, ls="--",
+                label=name)
+    ax.set_xlabel("displacement [mm]")
+    ax.set_ylabel("force [N]")
+    if zoom is None:
+        ax.autoscale_view()
+    else:
+        _zoom(ax, log, x, shown, zoom)
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize="small")
+    return ax
+
+
+def reversal_zoom_window(segmentation: Segmentation, log: Log, *, reversal: int | None = None,
+                         travel_mm: float | None = None,
+                         margin: float = 0.15) -> tuple[float, float]:
+    """The displacement window (mm) spanning ``travel_mm`` of travel after one reversal.
+
+    Args:
+        segmentation: the log's segmentation (:func:`fitstiff.segmentation.segment`).
+        log: the log.
+        reversal: position in ``segmentation.reversals`` (negative counts from the end);
+            default: the reversal followed by the longest leg, which starts from the most
+            saturated friction state and shows the whole pre-sliding curve.
+        travel_mm: travel shown after the reversal; default the segmentation's pre-sliding
+            range (0.5 mm unless set otherwise).
+        margin: extra width on both sides, as a fraction of ``travel_mm``.
+
+    Returns:
+        ``(low, high)`` in mm, for ``plot_loop(..., zoom=...)``.
+    """
+    _check_segmentation(segmentation, log)
+    reversals = segmentation.reversals
+    if reversals.size == 0:
+        raise InputError(log.name, "reversal zoom window", "the log has no direction reversal",
+                         "give plot_loop a zoom window (low_mm, high_mm) of your own")
+    x = log.displacement / MM
+    if reversal is None:
+        ends = np.append(reversals[1:], len(log) - 1)
+        k = int(np.argmax(np.abs(x[ends] - x[reversals])))
+    elif isinstance(reversal, (int, np.integer)) and -reversals.size <= reversal < reversals.size:
+        k = int(reversal) % reversals.size
+    else:
+        raise InputError(log.name, f"reversal {reversal!r}", "is not a reversal index",
+                         f"give a whole number from {-reversals.size} to {reversals.size - 1}")
+    travel = segmentation.presliding_range / MM if travel_mm is None else float(travel_mm)
+    if not (math.isfinite(travel) and travel > 0):
+        raise InputError(log.name, "zoom travel_mm", f"found {travel_mm!r}",
+                         "give a positive travel in mm")
+    turn = x[reversals[k]]
+    approach = turn - x[reversals[k - 1] if k else 0]
+    end = turn - math.copysign(travel, approach)      # the leg after turns back
+    low, high = sorted((turn, end))
+    return low - margin * travel, high + margin * travel
+
+
+def _band(band, log: Log) -> tuple[np.ndarray, np.ndarray]:
+    if len(band) != 2:
+        raise InputError(log.name, "band", f"has {len(band)} arrays",
+                         "give (lower, upper), one force array each")
+    lower, upper = (_per_sample(b, log, f"band {side}")
+                    for b, side in zip(band, ("lower", "upper"), strict=True))
+    if np.any(lower > upper):
+        raise InputError(log.name, "band", f"lower above upper at {np.sum(lower > upper)} samples",
+                         "give (lower, upper) in that order")
+    return lower, upper
+
+
+def _ribbon(x: np.ndarray, lower: np.ndarray, upper: np.ndarray, **style) -> PolyCollection:
+    """One quadrilateral per step between consecutive samples: a band along any path."""
+    quads = np.stack([np.column_stack([x[:-1], lower[:-1]]), np.column_stack([x[1:], lower[1:]]),
+                      np.column_stack([x[1:], upper[1:]]), np.column_stack([x[:-1], upper[:-1]])],
+                     axis=1)
+    return PolyCollection(quads, linewidths=0, antialiaseds=False, **style)
+
+
+def _zoom(ax: Axes, log: Log, x: np.ndarray, curves: Sequence[np.ndarray],
+          window: tuple[float, float]) -> None:
+    low, high = (float(v) for v in window)
+    if not (math.isfinite(low) and math.isfinite(high) and low < high):
+        raise InputError(log.name, "zoom window", f"found {window!r}",
+                         "give (low_mm, high_mm) with low < high")
+    inside = (x >= low) & (x <= high)
+    if not inside.any():
+        raise InputError(log.name, f"zoom window {low:g}..{high:g} mm", "holds no sample",
+                         f"choose a window within the log's {x.min():g}..{x.max():g} mm")
+    values = np.concatenate([c[inside] for c in curves])
+    lo, hi = float(np.nanmin(values)), float(np.nanmax(values))
+    pad = _ZOOM_PAD * (hi - lo) if hi > lo else 1.0
+    ax.set_xlim(low, high)
+    ax.set_ylim(lo - pad, hi + pad)
+
+
+# -- residuals ------------------------------------------------------------------------------------
+def plot_residuals(ax: Axes, log: Log, residual: ArrayLike, segmentation: Segmentation, *,
+                   against: Literal["displacement", "time"] = "displacement") -> Axes:
+    """Force residuals with the segmentation's motion regions, one legend entry per region.
+
+    Against time the regions shade the background (one collection per region) behind the
+    residual trace; against displacement, where the regions overlap along the axis, each
+    region's residuals are drawn as points in its colour (:data:`REGION_COLORS`).
+
+    Args:
+        ax: where to draw.
+        log: the log.
+        residual: model minus measured force at each sample (N).
+        segmentation: the log's segmentation.
+        against: ``"displacement"`` (mm) or ``"time"`` (s; the log needs time).
+
+    Returns:
+        ``ax``.
+    """
+    res = _per_sample(residual, log, "residual")
+    _check_segmentation(segmentation, log)
+    masks = {r: m for r in REGION_COLORS if (m := segmentation.region == REGIONS.index(r)).any()}
+    if against == "time":
+        if log.time is None:
+            raise InputError(log.name, "residuals against time",
+                             "the log has no time column (quasi-static)",
+                             "plot against='displacement'")
+        t = np.asarray(log.time)
+        edges = np.concatenate([t[:1], (t[1:] + t[:-1]) / 2, t[-1:]])   # sample k: edges[k:k+2]
+        for region, mask in masks.items():
+            ax.add_collection(_spans(edges, mask, ax, facecolor=REGION_COLORS[region],
+                                     alpha=0.25, label=region), autolim=False)
+        ax.plot(t, res, color="k", lw=0.6)
+        ax.set_xlim(t[0], t[-1])
+        ax.set_xlabel("time [s]")
+    elif against == "displacement":
+        x = log.displacement / MM
+        for region, mask in masks.items():
+            ax.plot(x[mask], res[mask], ls="", marker=".", ms=2.5, color=REGION_COLORS[region],
+                    label=region)
+        ax.set_xlabel("displacement [mm]")
+    else:
+        raise InputError(log.name, f"residuals against '{against}'", "is not an axis",
+                         "use against='displacement' or against='time'")
+    ax.axhline(0.0, color="k", lw=0.6, alpha=0.6)
+    ax.set_ylabel("residual, model − measured [N]")
+    ax.grid(True, alpha=0.3)
+    ax.legend(title="region", fontsize="small", markerscale=3, loc="lower left",
+              bbox_to_anchor=(0.0, 1.0), ncols=len(masks), frameon=False)
+    return ax
+
+
+def _spans(edges: np.ndarray, mask: np.ndarray, ax: Axes, **style) -> PolyCollection:
+    """Full-height rectangles over the runs of ``mask`` (x in data, y in axes coordinates)."""
+    step = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
+    starts, stops = np.flatnonzero(step == 1), np.flatnonzero(step == -1)
+    rects = [[(edges[a], 0.0), (edges[b], 0.0), (edges[b], 1.0), (edges[a], 1.0)]
+             for a, b in zip(starts, stops, strict=True)]
+    return PolyCollection(rects, transform=ax.get_xaxis_transform(), linewidths=0, **style)
+
+
+# -- chamber against seal over the stroke ---------------------------------------------------------
+@dataclasses.dataclass(frozen=True)
+class StrokeContributions:
+    """Chamber and seal restoring force over the stroke for one small displacement.
+
+    Attributes:
+        displacement_mm: the displacement ``u`` (+ toward the B cap).
+        position_mm: closing positions ``x`` (length of chamber A), those where the displaced
+            piston stays at least ``|u|`` from either cap (closer in, the chamber force of a
+            chamber without dead volume grows without bound).
+        chamber_N: restoring force of the closed chambers, exact polytropic law,
+            ``|F(u) - F(0)|`` with both chambers closed at ``x`` at the rig's supply pressure.
+        seal_N: the seal's force swing ``|u|`` after a reversal from saturation (the
+            pre-sliding curve; independent of the position).
+        crossover_mm: positions where the chamber force equals the seal's (ascending).
+        n: the polytropic exponent used.
+    """
+
+    displacement_mm: float
+    position_mm: np.ndarray
+    chamber_N: np.ndarray
+    seal_N: float
+    crossover_mm: np.ndarray
+    n: float
+
+
+def contributions_over_stroke(model: Model, rig: Rig, *, displacement_mm: float = 0.5,
+                              count: int = 700, n: float | None = None) -> StrokeContributions:
+    """Where the chamber and where the seal dominates (the paper's §4 discussion).
+
+    Args:
+        model: a model with a ``chamber`` term and a friction base (a fitted one:
+            ``result.model``).
+        rig: the cylinder (bore, stroke, dead lengths, supply pressure).
+        displacement_mm: the small displacement ``u`` (mm, + toward the B cap; the exact law
+            differs between the directions near the caps).
+        count: number of positions (centres of equal slices of the stroke,
+            :func:`fitstiff.stiffness.table_positions`).
+        n: polytropic exponent; default the model's (needed when its chamber used measured
+            pressures, so that ``n`` was not fitted).
+    """
+    if not model.has("chamber") or not model.of_kind("friction"):
+        raise InputError(None, f"model '{model.spec}'", "needs a chamber term and a friction base",
+                         "use a model such as chamber+dahl")
+    chamber = model.term("chamber")
+    if n is None and not chamber.closed:
+        raise InputError(None, "chamber over the stroke",
+                         "the model's chamber used measured pressures, so n was not fitted",
+                         "give n (1.4 for fast, adiabatic compression)")
+    n = float(chamber.n if n is None else n)
+    u = float(displacement_mm) * MM
+    if not (math.isfinite(u) and u != 0):
+        raise InputError(None, "displacement_mm", f"found {displacement_mm!r}",
+                         "give a small non-zero displacement in mm")
+    stroke = rig.require("stroke", needed_for="the chamber force over the stroke")
+    x = table_positions(stroke, count)
+    x = x[np.minimum(x + u, stroke - x - u) >= abs(u)]
+    chamber_n = np.array([abs(chamber_stiffness(rig, position=float(p), displacement=u,
+                                                n=n).force_exact) for p in x])
+    travel, force = (np.asarray(a) for a in presliding_curve(model))
+    if abs(u) > travel[-1]:
+        raise InputError(None, "displacement_mm", f"{displacement_mm:g} mm is beyond the seal's "
+                         f"pre-sliding curve ({travel[-1] / MM:.3g} mm)", "give a smaller one")
+    seal = float(np.interp(abs(u), travel, force - force[0]))
+    gap = chamber_n - seal
+    k = np.flatnonzero(np.sign(gap[1:]) != np.sign(gap[:-1]))
+    crossings = x[k] - gap[k] * (x[k + 1] - x[k]) / (gap[k + 1] - gap[k])
+    return StrokeContributions(displacement_mm=float(displacement_mm), position_mm=x / MM,
+                               chamber_N=chamber_n, seal_N=seal, crossover_mm=crossings / MM,
+                               n=n)
+
+
+def plot_contributions_over_stroke(ax: Axes, source: FitResult | Model, *, rig: Rig | None = None,
+                                   displacement_mm: float = 0.5, stiffness: bool = False,
+                                   count: int = 700, n: float | None = None,
+                                   log_scale: bool = True) -> Axes:
+    """Chamber against seal restoring force (or secant stiffness) over the stroke.
+
+    Draws the chamber (exact law, closed at each position at the supply pressure), the seal
+    (constant: its swing ``|u|`` after a reversal) and their sum; marks and labels the
+    crossovers and the log's closing position. Near the caps the chamber dominates, in the
+    middle of the stroke the seal (for the paper's cylinder).
+
+    Args:
+        ax: where to draw.
+        source: a :class:`~fitstiff.fitting.FitResult` (its model, and by default the rig of
+            its first log) or a :class:`~fitstiff.model.Model`.
+        rig: the cylinder; needed with a model, overrides a fit's.
+        displacement_mm, count, n: see :func:`contributions_over_stroke`.
+        stiffness: draw the secant stiffness ``F / |u|`` (N/mm) instead of the force (N).
+        log_scale: logarithmic force axis (the chamber force diverges at a cap without dead
+            volume).
+
+    Returns:
+        ``ax``.
+    """
+    if isinstance(source, Model):
+        model = source
+        if rig is None:
+            raise InputError(None, "chamber over the stroke", "a model was given without a rig",
+                             "pass rig=Rig(...) or a FitResult")
+    else:
+        model = source.model
+        rig = source.problem.logs[0].rig if rig is None else rig
+    c = contributions_over_stroke(model, rig, displacement_mm=displacement_mm, count=count, n=n)
+    scale, unit, what = ((1 / abs(c.displacement_mm), "N/mm", "secant stiffness") if stiffness
+                         else (1.0, "N", "restoring force"))
+    x = c.position_mm
+    seal = np.full(x.shape, c.seal_N * scale)
+    ax.plot(x, c.chamber_N * scale, color="tab:blue", label=f"chamber (exact law, n = {c.n:.3g})")
+    ax.plot(x, seal, color="tab:orange", label="seal (pre-sliding curve)")
+    ax.plot(x, c.chamber_N * scale + seal, color="k", ls="--", lw=1, label="total")
+    if c.crossover_mm.size:
+        ax.plot(c.crossover_mm, np.full(c.crossover_mm.shape, c.seal_N * scale), "o",
+                color="k", ms=5, label="crossover")
+        for xc in c.crossover_mm:
+            inward = 1 if xc < rig.stroke / MM / 2 else -1       # label toward mid-stroke
+            ax.annotate(f"{xc:.0f} mm", (xc, c.seal_N * scale), xytext=(6 * inward, 6),
+                        textcoords="offset points", ha="left" if inward > 0 else "right",
+                        fontsize="small")
+    if rig.start_position is not None:
+        ax.axvline(rig.start_position / MM, color="0.5", ls=":", lw=1,
+                   label=f"closing position {rig.start_position / MM:.0f} mm")
+    if log_scale:
+        ax.set_yscale("log")
+    ax.set_xlim(0, rig.stroke / MM)
+    ax.set_xlabel("piston position x (length of chamber A) [mm]")
+    ax.set_ylabel(f"{what} over {c.displacement_mm:g} mm [{unit}]")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize="small", loc="upper center")
+    return ax
+
+
+# -- posterior ------------------------------------------------------------------------------------
+def plot_corner(fig: Figure, samples: ArrayLike, names: Sequence[str], *,
+                truths: Sequence[float] | None = None,
+                quantiles: Sequence[float] = (0.05, 0.5, 0.95)) -> Figure:
+    """Corner plot (pairwise 2-D and 1-D marginal histograms) of posterior samples.
+
+    Takes a Figure, not an Axes: a corner plot is a grid of ``K x K`` axes, which the
+    ``corner`` package lays out itself (``fig`` must have no axes yet, or exactly ``K * K``).
+
+    Args:
+        fig: an empty figure (e.g. ``Figure(figsize=(2.5 * K, 2.5 * K))``).
+        samples: ``(n_samples, K)`` draws.
+        names: ``K`` axis labels, with units (``"sigma0 [N/mm]"``).
+        truths: ``K`` true values to mark (synthetic data).
+        quantiles: three increasing quantiles (low, middle, high), marked on the 1-D
+            histograms and quoted in their titles (default the 5/50/95 % of
+            ``posterior.json``).
+
+    Returns:
+        ``fig``. Needs the ``corner`` package (``pip install corner``).
+    """
+    data = np.asarray(samples, dtype=float)
+    if data.ndim != 2 or data.shape[1] != len(names) or data.shape[0] < 2:
+        raise InputError(None, "corner samples", f"have shape {data.shape} for {len(names)} names",
+                         "give an (n_samples, K) array with one name per column")
+    if truths is not None and len(truths) != len(names):
+        raise InputError(None, "corner truths", f"{len(truths)} values for {len(names)} names",
+                         "give one true value per name")
+    if not np.all(np.isfinite(data)):
+        raise InputError(None, "corner samples", "contain NaN or inf", "drop those draws")
+    q = np.asarray(quantiles, dtype=float)
+    if q.shape != (3,) or not (0 < q[0] < q[1] < q[2] < 1):
+        raise InputError(None, "corner quantiles", f"found {list(quantiles)}",
+                         "give three increasing quantiles in (0, 1), e.g. (0.05, 0.5, 0.95)")
+    try:
+        with warnings.catch_warnings():   # corner imports arviz, which announces a refactor
+            warnings.simplefilter("ignore", FutureWarning)
+            import corner
+    except ModuleNotFoundError:
+        raise InputError(None, "corner plot", "the 'corner' package is not installed",
+                         "pip install corner") from None
+    corner.corner(data, fig=fig, labels=list(names), truths=truths, quantiles=list(q),
+                  show_titles=True, title_quantiles=list(q))
+    return fig
+
+
+def plot_trace(ax: Axes, chain: ArrayLike, name: str, *, unit: str = "") -> Axes:
+    """Trace of one parameter: every walker's value over the steps and their median.
+
+    Args:
+        ax: where to draw.
+        chain: ``(steps, walkers)`` values of the parameter.
+        name: the parameter's name; ``unit`` its display unit.
+    """
+    values = _chain(chain, name)
+    steps = np.arange(values.shape[0])
+    lines = ax.plot(steps, values, color="k", lw=0.5, alpha=0.3)
+    lines[0].set_label(f"walkers ({values.shape[1]})")
+    ax.plot(steps, np.median(values, axis=1), color=_MODEL, lw=1.2, label="median over walkers")
+    ax.set_xlabel("step")
+    ax.set_ylabel(f"{name} [{unit}]" if unit else name)
+    ax.legend(fontsize="small")
+    return ax
+
+
+def plot_autocorr(ax: Axes, chain: ArrayLike, name: str, *, points: int = 12) -> Axes:
+    """Running estimate of the integrated autocorrelation time against the chain length.
+
+    emcee's estimator (autocorrelation averaged over walkers, Sokal's window ``c = 5``) on the
+    first ``N`` steps for ``points`` log-spaced ``N``, with the line ``N / 50``: the chain is
+    long enough once the estimate has levelled off below it (``N > 50 tau``).
+
+    Args:
+        ax: where to draw.
+        chain: ``(steps, walkers)`` values of the parameter (at least 10 steps).
+        name: the parameter's name.
+        points: number of chain lengths ``N``.
+    """
+    from emcee.autocorr import integrated_time
+
+    values = _chain(chain, name)
+    if values.shape[0] < 10:
+        raise InputError(None, f"chain of '{name}'", f"has {values.shape[0]} steps",
+                         "give at least 10 steps")
+    lengths = np.unique(np.geomspace(10, values.shape[0], points).astype(int))
+    tau = [float(integrated_time(values[:m, :, None], tol=0, quiet=True)[0]) for m in lengths]
+    ax.loglog(lengths, tau, "o-", color="tab:blue", label=f"tau estimate, {name}")
+    ax.loglog(lengths, lengths / _AUTOCORR_RUNS, "k--", lw=1, label=f"N / {_AUTOCORR_RUNS}")
+    ax.set_xlabel("chain length N [steps]")
+    ax.set_ylabel("integrated autocorrelation time tau [steps]")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize="small")
+    return ax
+
+
+# -- checks ---------------------------------------------------------------------------------------
+def _per_sample(values: ArrayLike, log: Log, what: str) -> np.ndarray:
+    a = np.asarray(values, dtype=float)
+    if a.shape != (len(log),):
+        raise InputError(log.name, what, f"has shape {a.shape}, the log {len(log)} samples",
+                         "give one value per sample of the log")
+    return a
+
+
+def _check_segmentation(segmentation: Segmentation, log: Log) -> None:
+    if segmentation.n_samples != len(log):
+        raise InputError(log.name, f"segmentation of '{segmentation.name}'",
+                         f"has {segmentation.n_samples} samples, the log {len(log)}",
+                         "pass the segmentation of this log (fitstiff.segmentation.segment)")
+
+
+def _chain(chain: ArrayLike, name: str) -> np.ndarray:
+    a = np.asarray(chain, dtype=float)
+    if a.ndim != 2 or a.shape[0] < 2:
+        raise InputError(None, f"chain of '{name}'", f"has shape {a.shape}",
+                         "give a (steps, walkers) array with at least 2 steps")
+    if not np.all(np.isfinite(a)):
+        raise InputError(None, f"chain of '{name}'", "contains NaN or inf",
+                         "check the sampler's log-probability")
+    return a
