@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import time
 from pathlib import Path
 
 import numpy as np
@@ -409,17 +408,14 @@ def test_unknown_region_and_bad_options_are_input_errors():
         segment(log, speed_edges=(0.01, 0.001))
 
 
-def test_million_samples_segment_fast():
-    """Vectorised: 1e6 samples, 200 noisy cycles, well under a second (bound generous for CI)."""
+def test_million_samples_segment():
+    """1e6 noisy samples, 200 cycles: every reversal found (speed: benchmarks/segmentation_speed.py)."""
     n, cycles = 1_000_000, 200
     phase = (np.arange(n) % (n / cycles)) / (n / cycles)
     x = 2e-3 * (2 * np.abs(2 * phase - 1) - 1) + np.random.default_rng(0).normal(0, SIGMA, n)
     log = Log(name="big", displacement=x, force=np.zeros(n), time=np.arange(n) / FS)
-    start = time.perf_counter()
     seg = segment(log)
-    elapsed = time.perf_counter() - start
     assert seg.reversals.size == 2 * cycles - 1
-    assert elapsed < 2.0
 
 
 # ------------------------------------------------------------------------------- real data
