@@ -139,8 +139,9 @@ def reversal_zoom_window(segmentation: Segmentation, log: Log, *, reversal: int 
         segmentation: the log's segmentation (:func:`fitstiff.segmentation.segment`).
         log: the log.
         reversal: position in ``segmentation.reversals`` (negative counts from the end);
-            default: the reversal followed by the longest leg, which starts from the most
-            saturated friction state and shows the whole pre-sliding curve.
+            default: of the reversals followed by at least ``travel_mm``, the one after the
+            longest travel (its friction state is the most saturated, so the pre-sliding
+            curve after it is the full one).
         travel_mm: travel shown after the reversal; default the segmentation's pre-sliding
             range (0.5 mm unless set otherwise).
         margin: extra width on both sides, as a fraction of ``travel_mm``.
@@ -153,19 +154,21 @@ def reversal_zoom_window(segmentation: Segmentation, log: Log, *, reversal: int 
     if reversals.size == 0:
         raise InputError(log.name, "reversal zoom window", "the log has no direction reversal",
                          "give plot_loop a zoom window (low_mm, high_mm) of your own")
+    travel = segmentation.presliding_range / MM if travel_mm is None else float(travel_mm)
+    if not (math.isfinite(travel) and travel > 0):
+        raise InputError(log.name, "zoom travel_mm", f"found {travel_mm!r}",
+                         "give a positive travel in mm")
     x = log.displacement / MM
     if reversal is None:
-        ends = np.append(reversals[1:], len(log) - 1)
-        k = int(np.argmax(np.abs(x[ends] - x[reversals])))
+        before = np.abs(x[reversals] - x[np.insert(reversals[:-1], 0, 0)])
+        after = np.abs(x[np.append(reversals[1:], len(log) - 1)] - x[reversals])
+        k = int(np.argmax(np.where(after >= travel, before, -np.inf)) if np.any(after >= travel)
+                else np.argmax(after))
     elif isinstance(reversal, (int, np.integer)) and -reversals.size <= reversal < reversals.size:
         k = int(reversal) % reversals.size
     else:
         raise InputError(log.name, f"reversal {reversal!r}", "is not a reversal index",
                          f"give a whole number from {-reversals.size} to {reversals.size - 1}")
-    travel = segmentation.presliding_range / MM if travel_mm is None else float(travel_mm)
-    if not (math.isfinite(travel) and travel > 0):
-        raise InputError(log.name, "zoom travel_mm", f"found {travel_mm!r}",
-                         "give a positive travel in mm")
     turn = x[reversals[k]]
     approach = turn - x[reversals[k - 1] if k else 0]
     end = turn - math.copysign(travel, approach)      # the leg after turns back

@@ -72,7 +72,7 @@ def example_fit() -> Example:
 
 
 def draw_loop_zoom(fig: Figure, ex: Example) -> None:
-    """The whole loop with per-term forces, and the zoom after the +1 mm reversal."""
+    """The whole loop with per-term forces, and the zoom after the -1 mm reversal."""
     full, zoomed = fig.subplots(1, 2)
     noise = ex.result.problem.force_noise[0]
     band = (ex.force - 2 * noise, ex.force + 2 * noise)
@@ -81,7 +81,7 @@ def draw_loop_zoom(fig: Figure, ex: Example) -> None:
     window = plotting.reversal_zoom_window(ex.segmentation, ex.log)
     plotting.plot_loop(zoomed, ex.log, ex.force, band=band, zoom=window,
                        label="fit chamber+dahl")
-    zoomed.set_title("0.5 mm after the reversal at +1 mm", fontsize="medium")
+    zoomed.set_title("0.5 mm after the reversal at -1 mm", fontsize="medium")
 
 
 def draw_residuals(fig: Figure, ex: Example) -> None:

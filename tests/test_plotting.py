@@ -67,13 +67,17 @@ def test_loop_draws_measured_model_band_and_terms(ex):
     np.testing.assert_allclose(y, ex.log.force)
 
 
-def test_reversal_zoom_window_follows_the_longest_leg(ex):
-    """Default: the +1 mm reversal (followed by the 2 mm leg), 0.5 mm back, 15 % margins."""
+def test_reversal_zoom_window_picks_the_most_saturated_reversal(ex):
+    """Default: the -1 mm reversal (2 mm of travel before it, 1 mm after it), 0.5 mm of travel
+    after it, 15 % margins. With 1.5 mm to show, only the +1 mm reversal qualifies."""
     x = ex.log.displacement * 1e3
     low, high = plotting.reversal_zoom_window(ex.segmentation, ex.log)
-    turn = x[ex.segmentation.reversals].max()
-    assert turn == pytest.approx(1.0, abs=0.01)
-    assert (low, high) == pytest.approx((turn - 0.5 - 0.075, turn + 0.075))
+    turn = x[ex.segmentation.reversals].min()
+    assert turn == pytest.approx(-1.0, abs=0.025)    # within a sample (20 um) of the turn
+    assert (low, high) == pytest.approx((turn - 0.075, turn + 0.5 + 0.075))
+    low, high = plotting.reversal_zoom_window(ex.segmentation, ex.log, travel_mm=1.5, margin=0)
+    assert (low, high) == pytest.approx((x[ex.segmentation.reversals].max() - 1.5,
+                                         x[ex.segmentation.reversals].max()))
     # the first reversal is at +0.2 mm and turns back down; a negative one turns back up
     r0, r1 = x[ex.segmentation.reversals[:2]]
     assert plotting.reversal_zoom_window(ex.segmentation, ex.log, reversal=0, travel_mm=0.1,
