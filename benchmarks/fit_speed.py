@@ -115,7 +115,7 @@ def main() -> None:
     ref_seconds, ref = time_reference(problem, np.asarray(start, dtype=float))
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        csv = write_log(log, tmp / "bench.csv")
+        csv = write_log(log, tmp / "bench.csv")[0]
         cold = cli_seconds(csv, tmp / "o1", tmp / "cache")
         second = cli_seconds(csv, tmp / "o2", tmp / "cache")
     report = {

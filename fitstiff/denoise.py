@@ -21,7 +21,6 @@ not turn anywhere else.
 from __future__ import annotations
 
 import numpy as np
-from scipy.optimize import isotonic_regression
 
 __all__ = ["denoise_displacement", "reversal_samples", "segment_velocity"]
 
@@ -57,6 +56,8 @@ def denoise_displacement(displacement: np.ndarray, reversals: np.ndarray) -> np.
     takes the value of the segment that starts there. That can only move a reversal by one
     sample, never add one: the result has exactly ``len(reversals)`` turning points.
     """
+    from scipy.optimize import isotonic_regression  # slow to import; only fits need it
+
     x = np.asarray(displacement, dtype=float)
     n = x.shape[0]
     cuts = np.unique(np.concatenate([[0], _extrema(x, np.asarray(reversals, dtype=int)),

@@ -263,7 +263,7 @@ def initial_guess(problem: Problem) -> tuple[Model, dict[str, np.ndarray]]:
 # -- the fit --------------------------------------------------------------------------------
 def fit(logs: Sequence[Log], model: Model | str, *, fix: Mapping[str, float] | Iterable[str] = (),
         solver: str = "lm", starts: int = 1, seed: int = 0, max_steps: int = 400,
-        rtol: float = 1e-8, atol: float = 1e-8, denoise: bool | str = "auto",
+        rtol: float = 1e-5, atol: float = 1e-5, denoise: bool | str = "auto",
         sample_range: tuple[int | None, int | None] | None = None,
         weights: Mapping[str, float] | None = None, skip: int = 0) -> FitResult:
     """Fit ``model`` jointly to ``logs`` by nonlinear least squares.
@@ -335,7 +335,7 @@ def _materialised_jacobian(f):
 
 
 def fit_problem(problem: Problem, *, solver: str = "lm", starts: int = 1, seed: int = 0,
-                max_steps: int = 400, rtol: float = 1e-8, atol: float = 1e-8,
+                max_steps: int = 400, rtol: float = 1e-5, atol: float = 1e-5,
                 initial: tuple[Model, Mapping[str, np.ndarray]] | None = None) -> FitResult:
     """Fit a prepared :class:`~fitstiff.problem.Problem` (see :func:`fit`)."""
     if solver not in SOLVERS:

@@ -44,13 +44,16 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 from scipy import ndimage
 
 from fitstiff.errors import InputError
 from fitstiff.log import Log
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 __all__ = [
     "REGIONS",
@@ -189,6 +192,8 @@ class Segmentation:
         ``speed_band`` (categorical), ``pressure_bar`` (pressure level, bar gauge; NaN when
         unknown), ``loop`` (index of the loop holding the sample, -1 outside every loop).
         """
+        import pandas as pd  # here, not at module level: most callers never need it
+
         n = self.n_samples
         loop = np.full(n, -1, dtype=np.int64)
         for k, (start, stop) in enumerate(self.loops):
