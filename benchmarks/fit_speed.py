@@ -43,7 +43,7 @@ def make_log():
                              cycles=1)
     sim = simulate("chamber+dahl", program, rig=RIG, params={"sigma0": 40, "Fc": 18, "n": 1.3},
                    noise=Noise(force_N=0.2, displacement_um=1.0, pressure_mbar=2.0),
-                   seed=1, name="bench", rate_hz=1000 * 4000 / 3900)
+                   seed=1, name="bench", rate_hz=1100.0)   # 4 070 samples
     log = sim.log.slice(0, 4000)
     return log
 
