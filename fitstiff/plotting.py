@@ -390,10 +390,10 @@ def plot_contributions_over_stroke(ax: Axes, source: FitResult | Model, *, rig: 
         ax.plot(c.crossover_mm, np.full(c.crossover_mm.shape, c.seal_N * scale), "o",
                 color="k", ms=5, label="crossover")
         for xc in c.crossover_mm:
-            inward = 1 if xc < rig.stroke / MM / 2 else -1       # label toward mid-stroke
-            ax.annotate(f"{xc:.0f} mm", (xc, c.seal_N * scale), xytext=(6 * inward, 6),
+            inward = 1 if xc < rig.stroke / MM / 2 else -1   # below the seal, toward mid-stroke
+            ax.annotate(f"{xc:.0f} mm", (xc, c.seal_N * scale), xytext=(6 * inward, -4),
                         textcoords="offset points", ha="left" if inward > 0 else "right",
-                        fontsize="small")
+                        va="top", fontsize="small")
     if rig.start_position is not None:
         ax.axvline(rig.start_position / MM, color="0.5", ls=":", lw=1,
                    label=f"closing position {rig.start_position / MM:.0f} mm")
