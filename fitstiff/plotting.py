@@ -109,6 +109,8 @@ def plot_loop(ax: Axes, log: Log, prediction: ArrayLike, *,
     x = log.displacement / MM
     force = np.asarray(log.force)
     model = _per_sample(prediction, log, "prediction")
+    terms = {name: _per_sample(values, log, f"contribution '{name}'")
+             for name, values in (contributions or {}).items()}
     shown = [force, model]
     if band is not None:
         lower, upper = _band(band, log)
@@ -116,9 +118,8 @@ def plot_loop(ax: Axes, log: Log, prediction: ArrayLike, *,
         shown += [lower, upper]
     ax.plot(x, force, color=_MEASURED, lw=0.8, label="measured")
     ax.plot(x, model, color=_MODEL, lw=1.2, label=label)
-    for name, values in (contributions or {}).items():
-        ax.plot(x, _per_sample(values, log, f"contribution '{name}'"), lw=1.0, ls="--",
-                label=name)
+    for name, values in terms.items():
+        ax.plot(x, values, lw=1.0, ls="--", label=name)
     ax.set_xlabel("displacement [mm]")
     ax.set_ylabel("force [N]")
     if zoom is None:
