@@ -3,7 +3,10 @@
 =============================== ==============================================================
 ``presliding_slope_N_per_mm``   slope of the friction force right after a reversal: sum over
                                 friction bases (``sigma0`` for Dahl / LuGre, ``sum k_i`` for
-                                Maxwell-slip)
+                                Maxwell-slip). For Dahl / LuGre this is the tangent at zero
+                                friction force; right after a reversal *from saturation* their
+                                tangent is ``sigma0 (1 + |F|/Fc)``, about ``2 sigma0``, while
+                                Maxwell-slip's is ``sum k_i`` from any state
 ``breakaway_N``                 largest friction force before gross sliding: sum over bases
                                 (``Fc`` Dahl, ``Fs`` LuGre, ``sum W_i`` Maxwell-slip) times the
                                 modifiers' reference level (e.g. the Stribeck ratio at low speed)
