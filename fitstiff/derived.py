@@ -30,11 +30,12 @@ from fitstiff._jax import jnp
 from fitstiff.drive import make_drive
 from fitstiff.terms.base import Modulation, Term
 
-__all__ = ["DERIVED", "derived_quantities", "presliding_curve"]
+__all__ = ["DERIVED", "derived_quantities", "presliding_curve", "split_unit"]
 
 DERIVED = ("presliding_slope_N_per_mm", "breakaway_N", "presliding_range_mm",
            "chamber_stiffness_N_per_mm", "total_stiffness_N_per_mm")
 
+_UNIT_SUFFIXES = (("_N_per_mm", "N/mm"), ("_mm", "mm"), ("_N", "N"))
 _SWING = 0.95
 _SAMPLES = 4001
 _QUASI_STATIC_SPEED = 1e-6  # m/s
@@ -50,6 +51,15 @@ class _Level(Term):
 
     def modulate(self, state, s, drive):
         return state, Modulation(level=self.level)
+
+
+def split_unit(name: str) -> tuple[str, str]:
+    """A derived quantity's label and display unit from its name's unit suffix:
+    ``"breakaway_N"`` -> ``("breakaway", "N")``; ``("name", "")`` without a known suffix."""
+    for suffix, unit in _UNIT_SUFFIXES:
+        if name.endswith(suffix):
+            return name[: -len(suffix)], unit
+    return name, ""
 
 
 def _reference(model):

@@ -31,7 +31,7 @@ import numpy as np
 import optimistix as optx
 
 from fitstiff._jax import jax, jnp
-from fitstiff.derived import DERIVED, derived_quantities
+from fitstiff.derived import DERIVED, derived_quantities, split_unit
 from fitstiff.errors import InputError
 from fitstiff.log import Log
 from fitstiff.model import Model
@@ -157,7 +157,7 @@ class FitResult:
             lines.append(f"  {name:<22}{p['value']:>14.6g}{err:>12}  {p['unit']}")
         lines.append(f"  {'derived':<22}")
         for name, (v, e) in self.derived.items():
-            label, unit = _split_unit(name)
+            label, unit = split_unit(name)
             err = "n/d" if not np.isfinite(e) else f"{e:.4g}"
             lines.append(f"  {label:<22}{v:>14.6g}{err:>12}  {unit}")
         for log in self.per_log:
@@ -171,13 +171,6 @@ class FitResult:
 
 def _fmt(v) -> str:
     return "n/a" if v is None or not np.isfinite(v) else f"{v:.4g}"
-
-
-def _split_unit(name: str) -> tuple[str, str]:
-    for suffix, unit in (("_N_per_mm", "N/mm"), ("_mm", "mm"), ("_N", "N")):
-        if name.endswith(suffix):
-            return name[: -len(suffix)], unit
-    return name, ""
 
 
 def _finite(v):

@@ -76,12 +76,17 @@ class OutputDir:
     >>> out = OutputDir("results", inputs=["run1.csv"], command="fit", seed=0)  # doctest: +SKIP
     >>> out.write_json("fit.json", {...})                                        # doctest: +SKIP
     >>> out.finish()                                                             # doctest: +SKIP
+
+    ``manifest_name`` names the manifest file; a command that adds to another run's directory
+    (``fitstiff report``) uses its own name so that run's ``manifest.json`` stays.
     """
 
     def __init__(self, path: str | os.PathLike, *, inputs: Iterable[str | os.PathLike] = (),
                  command: str | None = None, seed: int | None = None,
-                 options: Mapping[str, object] | None = None):
+                 options: Mapping[str, object] | None = None,
+                 manifest_name: str = "manifest.json"):
         self.path = Path(path)
+        self.manifest_name = manifest_name
         self.inputs = [Path(p) for p in inputs]
         self._protected = {p.resolve() for p in self.inputs if p.exists()}
         if self.path.exists() and not self.path.is_dir():
@@ -136,6 +141,6 @@ class OutputDir:
         }
 
     def finish(self) -> Path:
-        """Write ``manifest.json`` (last, so its presence marks a complete run)."""
-        return write_atomic(self.path / "manifest.json",
+        """Write the manifest (last, so its presence marks a complete run)."""
+        return write_atomic(self._target(self.manifest_name),
                             json.dumps(to_jsonable(self.manifest()), indent=2) + "\n")

@@ -242,7 +242,10 @@ def test_corner_draws_a_grid_with_labels():
     assert len(fig.axes) == 9
     bottom = fig.axes[6:]
     assert [ax.get_xlabel() for ax in bottom] == names
-    assert fig.axes[0].get_title().startswith("sigma0 [N/mm] = ")
+    low, mid, high = np.quantile(samples[:, 0], [0.05, 0.5, 0.95])
+    assert fig.axes[0].get_title() == (f"sigma0 [N/mm]\n${mid:.2f}^{{+{high - mid:.2f}}}"
+                                       f"_{{-{mid - low:.2f}}}$")   # 0.16: 2 digits
+    assert fig.axes[8].get_title() == "n [-]\n$1.3997^{+0.0069}_{-0.0067}$"   # 4 decimals
 
 
 @pytest.mark.parametrize("samples, names, options, message", [

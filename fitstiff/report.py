@@ -1,0 +1,781 @@
+"""Posterior-plot reports: a fit or posterior directory -> ``report.html`` + ``figures/``.
+
+>>> from fitstiff.report import write_report
+>>> write_report("out/fit")                                   # doctest: +SKIP
+PosixPath('out/fit/report.html')
+
+**What kind of report.** The directory's result file decides (:data:`RESULT_FILES`, first
+match): ``posterior.json`` (``fitstiff posterior --out``) or ``fit.json`` (``fitstiff fit
+--out``). The directory's ``manifest.json`` must list that file among its outputs, so a
+manifest of another run in the same directory is not mistaken for this one's. A new kind
+(``diagnosis.json``) adds an entry to :data:`RESULT_FILES` and a builder to ``_BUILDERS``.
+
+**The data.** Loops are redrawn from the logs, so the report re-reads them from the manifest's
+``inputs`` after checking every file's SHA-256 (a missing or changed file is an
+:class:`~fitstiff.errors.InputError` naming it), with the manifest's reading options
+(``options["reading"]``: keyword arguments of :func:`~fitstiff.loading.load_logs`, when
+recorded) and rebuilds the :class:`~fitstiff.problem.Problem` with the recorded model, fixed
+parameters and problem options (``denoise``, ``sample_range``, ``weights``, ``skip``).
+
+**The model's curves are recomputed, not stored.** Fit: the parameters of ``fit.json`` and each
+log's offset and initial friction state give the fitted ``theta`` exactly; the report then
+checks that every log's RMS residual reproduces ``fit.json`` (else the logs were read or the
+rig set up differently, and it says so instead of drawing another fit). Posterior: draws of
+``chain.h5`` after the burn-in and thinning in ``posterior.json`` give the median curve, a
+90 % posterior-predictive band (spread of the model force over the draws combined with the
+estimated noise level) and the median per-term forces; the trace and autocorrelation plots use
+the whole chain; the corner plot uses ``posterior.nc``.
+
+**The page** is one self-contained HTML file: inline CSS, every image an embedded base64 PNG,
+no script, no external reference; it opens offline. Every figure is also written as PNG and
+SVG to ``figures/``. The report's own manifest is ``report.manifest.json`` (the run's
+``manifest.json`` stays as it was).
+"""
+
+from __future__ import annotations
+
+import base64
+import dataclasses
+import html
+import io
+import json
+import math
+import re
+import warnings
+from collections.abc import Callable, Mapping, Sequence
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from matplotlib.figure import Figure
+
+from fitstiff import __version__, plotting
+from fitstiff._jax import jax, jnp
+from fitstiff.derived import split_unit
+from fitstiff.errors import InputError
+from fitstiff.loading import load_logs
+from fitstiff.log import Log
+from fitstiff.model import Model, build_model
+from fitstiff.output import OutputDir, sha256_file
+from fitstiff.params import find_param
+from fitstiff.problem import NUISANCES, Problem
+from fitstiff.stiffness import MM
+
+__all__ = ["FIGURES", "REPORT", "REPORT_MANIFEST", "RESULT_FILES", "ReportFigure",
+           "RunDirectory", "open_run", "write_report"]
+
+REPORT = "report.html"
+FIGURES = "figures"
+MANIFEST = "manifest.json"
+REPORT_MANIFEST = "report.manifest.json"
+CHAIN = "chain.h5"
+INFERENCE_DATA = "posterior.nc"
+RESULT_FILES: Mapping[str, str] = {"posterior": "posterior.json", "fit": "fit.json"}
+"""Report kind -> the result file that makes a directory one of that kind (checked in order)."""
+
+_Z90 = 1.6448536269514722       # two-sided 90 % of a standard normal
+_REPRODUCE_RTOL = 1e-3          # recomputed per-log RMS against fit.json
+_POSTERIOR_RMS_EXCESS = 0.10    # median curve worse than least squares by more: say so
+_DPI = 100
+_METADATA = {"png": {"Software": None}, "svg": {"Date": None}}
+
+
+# -- the run directory ----------------------------------------------------------------------
+@dataclasses.dataclass(frozen=True, eq=False)
+class RunDirectory:
+    """A finished run re-opened for reporting.
+
+    Attributes:
+        path: the directory.
+        kind: a key of :data:`RESULT_FILES`.
+        result: the result file's content (``fit.json`` / ``posterior.json``).
+        manifest: the run's ``manifest.json``.
+        problem: the rebuilt problem (re-read logs, recorded model and options).
+        inputs: the manifest's input files, each ``(path, sha256)``, all verified.
+    """
+
+    path: Path
+    kind: str
+    result: Mapping[str, Any]
+    manifest: Mapping[str, Any]
+    problem: Problem
+    inputs: tuple[tuple[Path, str], ...]
+
+    @property
+    def result_file(self) -> Path:
+        return self.path / RESULT_FILES[self.kind]
+
+
+def open_run(directory: str | Path) -> RunDirectory:
+    """Read a run directory: its result and manifest, the verified logs, the rebuilt problem.
+
+    Raises:
+        InputError: not a run directory, no or a foreign manifest, an input file missing or
+            changed since the run.
+    """
+    path = Path(directory)
+    if not path.is_dir():
+        raise InputError(str(path), "report directory", "does not exist or is not a directory",
+                         "give the --out directory of fitstiff fit or fitstiff posterior")
+    kind = next((k for k, name in RESULT_FILES.items() if (path / name).is_file()), None)
+    if kind is None:
+        raise InputError(str(path), "report directory",
+                         f"holds none of {', '.join(RESULT_FILES.values())}",
+                         "give the --out directory of fitstiff fit or fitstiff posterior")
+    name = RESULT_FILES[kind]
+    result = _read_json(path / name)
+    manifest = _read_json(path / MANIFEST, missing="the run did not finish; run it again")
+    if name not in manifest.get("outputs", []):
+        raise InputError(str(path / MANIFEST), "outputs",
+                         f"do not include {name} (the manifest is of another run: "
+                         f"{manifest.get('command', '?')})",
+                         "give every run its own --out directory")
+    inputs = tuple(_verified(entry, manifest=path / MANIFEST) for entry in manifest["inputs"])
+    options = manifest.get("options", {})
+    logs = load_logs(result["files"], **options.get("reading", {}))
+    return RunDirectory(path=path, kind=kind, result=result, manifest=manifest,
+                        problem=_problem(logs, result, options), inputs=inputs)
+
+
+def _read_json(path: Path, *, missing: str = "run the command that writes it") -> dict:
+    if not path.is_file():
+        raise InputError(str(path), "file", "is missing", missing)
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputError(str(path), "JSON", f"does not parse ({exc})",
+                         "restore the file written by fitstiff") from None
+
+
+def _verified(entry: Mapping[str, str], *, manifest: Path) -> tuple[Path, str]:
+    """An input of the run, checked against the SHA-256 its manifest recorded."""
+    path = Path(entry["path"])
+    relative = "" if path.is_absolute() else (
+        " (the path is relative to the directory the run was started in: run the report "
+        "from there)")
+    if not path.is_file():
+        raise InputError(str(path), f"input of the run in {manifest}",
+                         "is missing" + relative, "restore the file or run again")
+    digest = sha256_file(path)
+    if digest != entry["sha256"]:
+        raise InputError(str(path), f"input of the run in {manifest}",
+                         f"has changed since the run (sha256 {digest[:12]}... now, "
+                         f"{entry['sha256'][:12]}... recorded)",
+                         "restore the original file or run again on the new one")
+    return path, digest
+
+
+def _problem(logs: Sequence[Log], result: Mapping[str, Any],
+             options: Mapping[str, Any]) -> Problem:
+    """The run's problem: its model, fixed values (from the result file, exact) and the
+    nuisances it fixed (from the manifest's ``fix``), its problem options."""
+    spec = result["model"]
+    template = build_model(spec)
+    fix: dict[str, float | None] = {
+        name: p["value"] * find_param(template, name).scale
+        for name, p in result["parameters"].items() if p.get("fixed")}
+    fix |= dict.fromkeys(n for item in options.get("fix", [])
+                         if (n := item.partition("=")[0]) in NUISANCES)
+    sample_range = options.get("sample_range")
+    return Problem(logs, spec, fix=fix, denoise=options.get("denoise", "auto"),
+                   sample_range=tuple(sample_range) if sample_range is not None else None,
+                   weights=options.get("weights") or None, skip=options.get("skip", 0))
+
+
+# -- the model's curves ---------------------------------------------------------------------
+@dataclasses.dataclass(frozen=True)
+class _Curves:
+    """What the model says about each log, and a point model for the stroke figure."""
+
+    force: list[np.ndarray]                         # the central model force per log
+    contributions: list[dict[str, np.ndarray]]      # label -> per-term force per log
+    band: list[tuple[np.ndarray, np.ndarray]] | None
+    model: Model
+    label: str                                       # legend label of the central curve
+
+    def residual(self, problem: Problem, i: int) -> np.ndarray:
+        return self.force[i] - np.asarray(problem.logs[i].force)
+
+    def rms(self, problem: Problem, i: int) -> float:
+        """RMS residual over the samples that carried weight in the run."""
+        r = self.residual(problem, i)[problem.sample_weights[i] > 0]
+        return float(np.sqrt(np.mean(r**2)))
+
+
+def _term_labels(model: Model) -> list[str]:
+    return [f"seal ({n})" if model.term(n).kind == "friction" else n for n in model.force_names]
+
+
+def _fit_curves(run: RunDirectory) -> _Curves:
+    """The fitted curves from fit.json's values; each log's RMS must reproduce fit.json."""
+    problem, result = run.problem, run.result
+    values = {name: p["value"] * problem.par_scale(name)
+              for name, p in result["parameters"].items() if not p.get("fixed")}
+    model = problem.par.with_values(problem.model, values, where=str(run.result_file))
+    nuisances = {name: [entry[key] for entry in result["per_log"]]
+                 for name, key in (("offset", "offset_N"), ("friction_state0", "friction_state0"))
+                 if name in problem.nuisance_names}
+    per_log = problem.per_log(problem.pack(model, nuisances))
+    labels = _term_labels(model)
+    curves = _Curves(force=[p["force"] for p in per_log],
+                     contributions=[dict(zip(labels, p["contributions"].T)) for p in per_log],
+                     band=None, model=model, label=f"fit {model.spec}")
+    for i, entry in enumerate(result["per_log"]):
+        rms = curves.rms(problem, i)
+        if not math.isclose(rms, entry["rms_N"], rel_tol=_REPRODUCE_RTOL):
+            raise InputError(str(run.result_file), f"log {entry['name']}",
+                             f"the fitted model gives an RMS residual of {rms:.6g} N on the "
+                             f"re-read log, fit.json says {entry['rms_N']:.6g} N",
+                             "the log was read or its rig set up differently from the fit "
+                             "(sidecar JSON edited, or reading options / rig overrides the "
+                             "manifest does not record): run the fit again")
+    return curves
+
+
+@dataclasses.dataclass(frozen=True)
+class _Chain:
+    """The posterior chain in physical display units, and the draws kept after burn-in."""
+
+    theta: np.ndarray        # (steps, walkers, size) as sampled (unconstrained)
+    log_prob: np.ndarray     # (steps, walkers)
+    display: np.ndarray      # (steps, walkers, size): model parameters in display units,
+                             # nuisances in theirs (N, fraction)
+    discard: int
+    thin: int
+
+    @property
+    def kept(self) -> np.ndarray:
+        return self.theta[self.discard::self.thin].reshape(-1, self.theta.shape[-1])
+
+    @property
+    def kept_log_prob(self) -> np.ndarray:
+        return self.log_prob[self.discard::self.thin].ravel()
+
+
+def _read_chain(run: RunDirectory) -> _Chain:
+    import emcee
+
+    problem, result = run.problem, run.result
+    path = run.path / CHAIN
+    if not path.is_file():
+        raise InputError(str(path), "chain file", "is missing",
+                         "run fitstiff posterior again into this directory")
+    try:
+        backend = emcee.backends.HDFBackend(str(path), name="mcmc", read_only=True)
+        theta, log_prob = backend.get_chain(), backend.get_log_prob()
+    except (OSError, KeyError, AttributeError) as exc:
+        raise InputError(str(path), "chain file", f"cannot be read ({exc})",
+                         "run fitstiff posterior again into this directory") from None
+    sampled = [n for n, p in result["parameters"].items() if not p.get("fixed")]
+    sampled += list(result["nuisances"])
+    if sampled != problem.names or theta.shape[-1] != problem.size:
+        raise InputError(str(path), "chain",
+                         f"holds {theta.shape[-1]} coordinates ({', '.join(sampled)}), the "
+                         f"rebuilt problem {problem.size} ({', '.join(problem.names)})",
+                         "run fitstiff posterior again into this directory")
+    physical = jax.jit(jax.vmap(problem.physical))
+    flat = np.asarray(physical(jnp.asarray(theta.reshape(-1, problem.size))))
+    scales = np.concatenate([problem.par.scales(), np.ones(problem.size - problem.par.size)])
+    diagnostics = result["diagnostics"]
+    return _Chain(theta=theta, log_prob=log_prob,
+                  display=(flat / scales).reshape(theta.shape),
+                  discard=int(diagnostics["discard"]), thin=int(diagnostics["thin"]))
+
+
+def _posterior_curves(run: RunDirectory, chain: _Chain, *, draws: int) -> _Curves:
+    """Median curve, 90 % predictive band and median per-term forces over ``draws`` evenly
+    spaced kept samples; the point model is the most probable kept sample."""
+    problem = run.problem
+    kept = chain.kept
+    pick = np.unique(np.linspace(0, kept.shape[0] - 1, min(draws, kept.shape[0])).round()
+                     .astype(int))
+    per_draw = [problem.per_log(jnp.asarray(kept[k])) for k in pick]
+    best, _ = problem.unpack(jnp.asarray(kept[int(np.argmax(chain.kept_log_prob))]))
+    labels = _term_labels(best)
+    scale = run.result["noise"]["scale"]
+    force, band, contributions = [], [], []
+    for i, log in enumerate(problem.logs):
+        f = np.stack([d[i]["force"] for d in per_draw])
+        centre = np.median(f, axis=0)
+        sd = scale[f"force[{log.name}]"]["sd"]
+        half = _Z90 * np.sqrt(np.var(f, axis=0) + sd**2)
+        force.append(centre)
+        band.append((centre - half, centre + half))
+        terms = np.median(np.stack([d[i]["contributions"] for d in per_draw]), axis=0)
+        contributions.append(dict(zip(labels, terms.T)))
+    return _Curves(force=force, contributions=contributions, band=band, model=best,
+                   label=f"posterior median, {best.spec}")
+
+
+# -- figures --------------------------------------------------------------------------------
+@dataclasses.dataclass(frozen=True)
+class ReportFigure:
+    """One figure of the report: ``figures/<name>.png`` and ``.svg``, shown with a caption."""
+
+    name: str
+    caption: str
+    figure: Figure
+
+
+@dataclasses.dataclass(frozen=True)
+class _Section:
+    title: str
+    html: str = ""                                 # already escaped
+    figures: tuple[ReportFigure, ...] = ()
+
+
+def _file_stem(name: str) -> str:
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", name)
+
+
+def _loop_figure(problem: Problem, curves: _Curves, i: int) -> ReportFigure:
+    log, seg = problem.logs[i], problem.segmentations[i]
+    band = curves.band[i] if curves.band else None
+    fig = Figure(figsize=(12, 4.6), layout="constrained")
+    try:
+        window = plotting.reversal_zoom_window(seg, log)
+    except InputError as exc:          # no reversal: the whole loop only
+        window, note = None, f" No zoom: {exc}."
+    else:
+        note = (f" Right: the first {seg.presliding_range / MM:g} mm after the reversal that "
+                "follows the longest travel (the pre-sliding curve from saturation, as in the "
+                "paper's Fig. 4).")
+    axes = fig.subplots(1, 1 if window is None else 2, squeeze=False)[0]
+    plotting.plot_loop(axes[0], log, curves.force[i], band=band,
+                       contributions=curves.contributions[i], label=curves.label)
+    axes[0].set_title(f"{log.name}: whole log")
+    if window is not None:
+        plotting.plot_loop(axes[1], log, curves.force[i], band=band, zoom=window,
+                           label=curves.label)
+        axes[1].set_title("pre-sliding after a reversal")
+    shaded = " The shaded band is the 90 % posterior-predictive band." if band else ""
+    caption = (f"{log.name}: measured force against displacement with the model "
+               f"({curves.label}); dashed: the force of each term (the per-log offset "
+               f"not included).{shaded}{note}")
+    return ReportFigure(f"loop_{_file_stem(log.name)}", caption, fig)
+
+
+def _residual_figure(problem: Problem, curves: _Curves, i: int) -> ReportFigure:
+    log, seg = problem.logs[i], problem.segmentations[i]
+    against = ("displacement", "time") if log.has_time else ("displacement",)
+    fig = Figure(figsize=(12, 4.0), layout="constrained")
+    residual = curves.residual(problem, i)
+    for ax, axis in zip(fig.subplots(1, len(against), squeeze=False)[0], against):
+        plotting.plot_residuals(ax, log, residual, seg, against=axis)
+    fig.suptitle(f"{log.name}: RMS {curves.rms(problem, i):.3g} N, force noise estimate "
+                 f"{problem.force_noise[i]:.3g} N")
+    caption = (f"{log.name}: residual (model - measured) against displacement and time, "
+               "coloured by motion region (pre-sliding after a reversal, sliding, dwell after a "
+               "standstill, standstill). Structure that repeats at every reversal, or a level "
+               "that differs between the regions, is what the model misses.")
+    return ReportFigure(f"residuals_{_file_stem(log.name)}", caption, fig)
+
+
+def _stroke_figure(problem: Problem, model: Model) -> ReportFigure | str:
+    """Chamber against seal over the stroke at the highest supply pressure of the logs, or why
+    it cannot be drawn."""
+    rigs = [log.rig for log in problem.logs]
+    rig = max(rigs, key=lambda r: -math.inf if r.supply_pressure is None else r.supply_pressure)
+    fig = Figure(figsize=(12, 4.6), layout="constrained")
+    ax = fig.add_subplot()
+    try:
+        plotting.plot_contributions_over_stroke(ax, model, rig=rig)
+    except InputError as exc:
+        return f"The chamber-against-seal figure is not drawn: {exc}."
+    bar = "" if rig.supply_pressure is None else f" at {rig.supply_pressure / 1e5:g} bar"
+    ax.set_title(f"fitted cylinder: chamber against seal over the stroke{bar}")
+    caption = ("Restoring force of the closed chambers (exact polytropic law, closed at each "
+               "position) against the seal's force swing over 0.5 mm after a reversal, over "
+               f"the whole stroke{bar} (the highest supply pressure of the logs). Where the "
+               "chamber line is below the seal's, the seal sets the stiffness.")
+    return ReportFigure("chamber_vs_seal", caption, fig)
+
+
+def _model_sections(problem: Problem, curves: _Curves) -> list[_Section]:
+    """Loops, residuals and chamber against seal: every kind of report has them."""
+    n = problem.n_logs
+    stroke = _stroke_figure(problem, curves.model)
+    return [
+        _Section("Loops", figures=tuple(_loop_figure(problem, curves, i) for i in range(n))),
+        _Section("Residuals", figures=tuple(_residual_figure(problem, curves, i)
+                                            for i in range(n))),
+        _Section("Chamber against seal over the stroke",
+                 html=_p(stroke) if isinstance(stroke, str) else "",
+                 figures=() if isinstance(stroke, str) else (stroke,)),
+    ]
+
+
+def _corner_figure(run: RunDirectory, truth: Mapping[str, float]) -> ReportFigure:
+    """Corner plot of the model parameters and the derived quantities from ``posterior.nc``
+    (derived quantities equal to a parameter, such as Dahl's slope = sigma0, shown once)."""
+    import arviz as az
+
+    path = run.path / INFERENCE_DATA
+    if not path.is_file():
+        raise InputError(str(path), "posterior samples", "are missing",
+                         "run fitstiff posterior again into this directory")
+    with warnings.catch_warnings():      # arviz announces a refactor
+        warnings.simplefilter("ignore", FutureWarning)
+        posterior = az.from_netcdf(str(path)).posterior
+    columns: list[np.ndarray] = []
+    labels: list[str] = []
+    truths: list[float | None] = []
+    names = [n for n, p in run.result["parameters"].items() if not p.get("fixed")]
+    for name in names + list(run.result["derived"]):
+        values = np.asarray(posterior[name]).ravel()
+        if (not np.all(np.isfinite(values)) or np.ptp(values) == 0
+                or any(np.allclose(values, c, rtol=1e-9, atol=0) for c in columns)):
+            continue
+        label, unit = (name, run.result["parameters"][name]["unit"]) if name in names \
+            else split_unit(name)
+        columns.append(values)
+        labels.append(f"{label} [{unit}]" if unit not in ("", "-") else label)
+        truths.append(truth.get(name))
+    k = len(columns)
+    fig = Figure(figsize=(2.3 * k, 2.3 * k))
+    plotting.plot_corner(fig, np.column_stack(columns), labels,
+                         truths=truths if any(t is not None for t in truths) else None)
+    marked = (" Blue lines: the true values of the synthetic logs (from their .truth.json)."
+              if any(t is not None for t in truths) else "")
+    caption = ("Posterior of the parameters and derived quantities (derived at the first "
+               "log's operating point): pairwise samples and marginal histograms with the 5, "
+               "50 and 95 % quantiles (dashed) quoted above each column." + marked)
+    return ReportFigure("corner", caption, fig)
+
+
+def _chain_figures(run: RunDirectory, chain: _Chain) -> list[ReportFigure]:
+    """Trace (with the burn-in marked) and running autocorrelation time, per parameter."""
+    problem = run.problem
+    out = []
+    for j, name in enumerate(problem.par.names):
+        values = chain.display[:, :, j]
+        fig = Figure(figsize=(12, 3.8), layout="constrained")
+        ax_trace, ax_tau = fig.subplots(1, 2)
+        plotting.plot_trace(ax_trace, values, name, unit=run.result["parameters"][name]["unit"])
+        ax_trace.axvline(chain.discard, color="tab:blue", ls=":", lw=1.2,
+                         label=f"burn-in end (step {chain.discard})")
+        ax_trace.legend(fontsize="small")
+        plotting.plot_autocorr(ax_tau, values, name)
+        tau = run.result["diagnostics"]["autocorr_time"][name]
+        caption = (f"{name}: every walker's value over the steps (left; the steps before the "
+                   f"dotted line are discarded as burn-in) and the running estimate of its "
+                   f"integrated autocorrelation time (right; {tau:.3g} steps over the whole "
+                   "chain). The chain is long enough where the estimate has levelled off "
+                   "below the dashed line N / 50.")
+        out.append(ReportFigure(f"trace_{_file_stem(name)}", caption, fig))
+    return out
+
+
+def _truth(logs: Sequence[Log]) -> dict[str, float]:
+    """True values (display units) from ``<stem>.truth.json`` beside the logs: parameters
+    that every truth file agrees on, derived quantities of the first log (where the report's
+    derived quantities are evaluated). Empty without truth files."""
+    files = [log.path.with_name(f"{log.path.stem}.truth.json") if log.path else None
+             for log in logs]
+    if not files or not all(f is not None and f.is_file() for f in files):
+        return {}
+    truths = [_read_json(f) for f in files]
+    params = [{k: v["value"] for k, v in t.get("parameters", {}).items()} for t in truths]
+    out = {k: v for k, v in params[0].items() if all(p.get(k) == v for p in params)}
+    return out | dict(truths[0].get("derived", {}))
+
+
+# -- tables and words -----------------------------------------------------------------------
+def _fmt(value: float | None, digits: int = 5) -> str:
+    if value is None or not math.isfinite(value):
+        return "n/a"
+    return f"{value:.{digits}g}"
+
+
+def _p(text: str) -> str:
+    return f"<p>{html.escape(text)}</p>"
+
+
+def _table(headers: Sequence[str], rows: Sequence[Sequence[str]], *,
+           numeric_from: int = 1) -> str:
+    head = "".join(f"<th>{html.escape(h)}</th>" for h in headers)
+    body = "".join(
+        "<tr>" + "".join(f'<td class="{"num" if j >= numeric_from else "name"}">'
+                         f"{html.escape(c)}</td>" for j, c in enumerate(row)) + "</tr>"
+        for row in rows)
+    return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
+
+
+@dataclasses.dataclass(frozen=True)
+class _Verdict:
+    status: str                  # "ok", "caution" or "bad"
+    headline: str
+    details: tuple[str, ...]
+
+
+def _fit_verdict(result: Mapping[str, Any]) -> _Verdict:
+    rms = result["rms_N"]
+    noise = float(np.mean([p["force_noise_N"] for p in result["per_log"]]))
+    warnings_ = tuple(result["warnings"])
+    if result["converged"]:
+        headline = (f"The fit converged ({result['solver']}, {result['steps']} steps): RMS "
+                    f"residual {rms:.3g} N against a force noise estimate of {noise:.3g} N.")
+    else:
+        headline = f"The fit did NOT converge: {result['message']}. Do not use its numbers."
+    status = "bad" if not result["converged"] else ("caution" if warnings_ else "ok")
+    return _Verdict(status, headline, warnings_)
+
+
+def _posterior_verdict(result: Mapping[str, Any], curves_rms: float) -> _Verdict:
+    d = result["diagnostics"]
+    tau = d["autocorr_time"]
+    worst = max(tau, key=lambda k: tau[k])
+    ess = d["effective_samples"]
+    fewest = min(ess, key=lambda k: ess[k])
+    if d["converged"]:
+        headline = f"The chain converged: {d['reason']}."
+    else:
+        headline = (f"The chain did NOT converge: {d['reason']}. Its intervals are rough: run "
+                    "longer (fitstiff posterior --resume --steps N) before quoting them.")
+    details = [
+        f"{d['steps']} steps x {d['walkers']} walkers, noise model {d['noise_model']}; "
+        f"burn-in {d['discard']} steps discarded, thinned by {d['thin']}: "
+        f"{result['samples']} samples kept.",
+        f"Mean acceptance fraction {d['acceptance_fraction']:.2f} (lowest walker "
+        f"{d['acceptance_fraction_min']:.2f}; 0.2-0.5 is healthy for emcee's stretch move).",
+        f"Integrated autocorrelation time: largest {tau[worst]:.3g} steps ({worst}); the chain "
+        f"is {d['steps'] / tau[worst]:.3g} of them long ({d['tau_multiple']:g} required).",
+        f"Effective samples: fewest {ess[fewest]:.0f} ({fewest}).",
+    ]
+    cautions = [w for w in result["warnings"] if d["reason"] not in w]   # said above
+    fit = result.get("fit")
+    if fit and curves_rms > (1 + _POSTERIOR_RMS_EXCESS) * fit["rms_N"]:
+        cautions.append(f"The posterior median curve's RMS residual, {curves_rms:.3g} N, is "
+                        f"more than {100 * _POSTERIOR_RMS_EXCESS:.0f} % above the "
+                        f"least-squares fit's {fit['rms_N']:.3g} N: the walkers have not "
+                        "found the optimum.")
+    status = "bad" if not d["converged"] else ("caution" if cautions else "ok")
+    return _Verdict(status, headline, tuple(details + cautions))
+
+
+def _fit_tables(run: RunDirectory, truth: Mapping[str, float]) -> str:
+    result = run.result
+    rows = []
+    for name, p in result["parameters"].items():
+        if p.get("fixed"):
+            rows.append([name, _fmt(p["value"]), "fixed", "", p["unit"], _fmt(truth.get(name))])
+            continue
+        rows.append([name, _fmt(p["value"]), _fmt(p["stderr"], 2),
+                     _interval_from_stderr(p["value"], p["stderr"]), p["unit"],
+                     _fmt(truth.get(name))])
+    for name, d in result["derived"].items():
+        label, unit = split_unit(name)
+        rows.append([label, _fmt(d["value"]), _fmt(d["stderr"], 2),
+                     _interval_from_stderr(d["value"], d["stderr"]), unit,
+                     _fmt(truth.get(name))])
+    return _table(["quantity", "estimate", "standard error", "90 % interval", "unit", "truth"],
+                  rows)
+
+
+def _interval_from_stderr(value: float, stderr: float | None) -> str:
+    if stderr is None:
+        return "n/a (not determined)"
+    return f"{_fmt(value - _Z90 * stderr)} to {_fmt(value + _Z90 * stderr)}"
+
+
+def _posterior_tables(run: RunDirectory, truth: Mapping[str, float]) -> str:
+    result = run.result
+    fit = result.get("fit") or {}
+    least_squares = {**fit.get("parameters", {}), **fit.get("derived", {})}
+    rows = []
+    for name, s in list(result["parameters"].items()) + list(result["derived"].items()):
+        label = name if name in result["parameters"] else split_unit(name)[0]
+        if s.get("fixed"):
+            rows.append([label, _fmt(s["value"]), "fixed", "", s["unit"], "",
+                         _fmt(truth.get(name))])
+            continue
+        ls = least_squares.get(name)
+        rows.append([label, _fmt(s["q50"]), _fmt(s["std"], 2),
+                     f"{_fmt(s['q05'])} to {_fmt(s['q95'])}", s["unit"],
+                     "" if ls is None else f"{_fmt(ls['value'])} ± {_fmt(ls['stderr'], 2)}",
+                     _fmt(truth.get(name))])
+    return _table(["quantity", "median", "std", "90 % interval (5-95 %)", "unit",
+                   "least squares ± stderr", "truth"], rows)
+
+
+def _log_table(problem: Problem, curves: _Curves, offsets: Sequence[float | None]) -> str:
+    """Per log: size, pressure, the point model's chamber stiffness at its start, fit quality."""
+    model = curves.model
+    rows = []
+    for i, log in enumerate(problem.logs):
+        supply = log.rig.supply_pressure
+        k_chamber = (float(model.term("chamber").stiffness(problem.drives[i])) * 1e-3
+                     if model.has("chamber") else None)
+        rows.append([log.name, str(len(log)),
+                     "n/a" if supply is None else _fmt(supply / 1e5, 3), _fmt(k_chamber, 4),
+                     _fmt(curves.rms(problem, i), 3), _fmt(problem.force_noise[i], 3),
+                     _fmt(offsets[i], 3), "yes" if problem.denoised[i] else "no"])
+    return _table(["log", "samples", "supply [bar]", "chamber stiffness [N/mm]",
+                   "RMS residual [N]", "force noise estimate [N]", "force offset [N]",
+                   "displacement denoised"], rows)
+
+
+def _inputs_table(run: RunDirectory) -> str:
+    rows = [[str(path), f"{digest[:16]}...", "unchanged since the run"]
+            for path, digest in run.inputs]
+    return _table(["input file", "sha256", "check"], rows, numeric_from=3)
+
+
+_DEFINITIONS = _p(
+    "presliding_slope: the seal's stiffness at zero friction force (Dahl, LuGre: sigma0; right "
+    "after a reversal from saturation these models start about twice as steep); breakaway: the "
+    "largest friction force before gross sliding; presliding_range: travel after a reversal "
+    "until the friction force has made 95 % of its swing; chamber_stiffness: linearised "
+    "stiffness of the closed chambers at the first log's start (every log's in the table "
+    "below); total_stiffness: their sum.")
+
+
+# -- the two kinds --------------------------------------------------------------------------
+@dataclasses.dataclass(frozen=True)
+class _Report:
+    title: str
+    verdict: _Verdict
+    summary: str                       # HTML
+    sections: tuple[_Section, ...]
+
+
+def _fit_report(run: RunDirectory, *, draws: int) -> _Report:
+    del draws                          # a fit has no posterior draws
+    curves = _fit_curves(run)
+    truth = _truth(run.problem.logs)
+    offsets = [p["offset_N"] for p in run.result["per_log"]]
+    summary = (_fit_tables(run, truth)
+               + _p("Standard errors from the Laplace covariance, inflated for autocorrelated "
+                    "residuals; the 90 % interval is estimate ± 1.645 standard errors.")
+               + _DEFINITIONS
+               + _log_table(run.problem, curves, offsets))
+    return _Report(f"Fit report: {run.result['model']}", _fit_verdict(run.result), summary,
+                   tuple(_model_sections(run.problem, curves)))
+
+
+def _posterior_report(run: RunDirectory, *, draws: int) -> _Report:
+    chain = _read_chain(run)
+    curves = _posterior_curves(run, chain, draws=draws)
+    problem = run.problem
+    truth = _truth(problem.logs)
+    rms = math.sqrt(sum(curves.rms(problem, i) ** 2 * len(log)
+                        for i, log in enumerate(problem.logs))
+                    / sum(len(log) for log in problem.logs))
+    nuisances = run.result["nuisances"]
+    offsets = [nuisances.get(f"offset[{log.name}]", {}).get("q50") for log in problem.logs]
+    summary = (_posterior_tables(run, truth)
+               + _p("Posterior medians, standard deviations and central 90 % intervals. The "
+                    "least-squares column is the fit the walkers started from.")
+               + _DEFINITIONS
+               + _log_table(problem, curves, offsets))
+    sections = _model_sections(problem, curves) + [
+        _Section("Posterior", figures=(_corner_figure(run, truth),)),
+        _Section("Chains: trace and autocorrelation time",
+                 html=_p("Model parameters only; the per-log offsets and initial friction "
+                         "states are in chain.h5 and posterior.nc."),
+                 figures=tuple(_chain_figures(run, chain))),
+    ]
+    return _Report(f"Posterior report: {run.result['model']}",
+                   _posterior_verdict(run.result, rms), summary, tuple(sections))
+
+
+_BUILDERS: Mapping[str, Callable[..., _Report]] = {"posterior": _posterior_report,
+                                                   "fit": _fit_report}
+
+
+# -- writing --------------------------------------------------------------------------------
+def write_report(directory: str | Path, *, out: str | Path | None = None,
+                 draws: int = 100) -> Path:
+    """Write ``report.html`` and ``figures/*.png|svg`` for a fit or posterior directory.
+
+    Args:
+        directory: the ``--out`` directory of ``fitstiff fit`` or ``fitstiff posterior``.
+        out: where to write (default ``directory``); a manifest ``report.manifest.json``
+            goes with it.
+        draws: posterior draws evaluated for the median curve and the predictive band.
+
+    Returns:
+        The path of ``report.html``.
+
+    Raises:
+        InputError: see :func:`open_run`; a fit that the re-read logs do not reproduce.
+    """
+    if not (isinstance(draws, int) and draws >= 2):
+        raise InputError(None, f"draws {draws!r}", "must be a whole number >= 2",
+                         "give e.g. 100")
+    run = open_run(directory)
+    report = _BUILDERS[run.kind](run, draws=draws)
+    target = OutputDir(Path(out) if out is not None else run.path,
+                       inputs=[run.result_file, run.path / MANIFEST]
+                       + [path for path, _ in run.inputs],
+                       options={"directory": str(run.path), "kind": run.kind, "draws": draws},
+                       manifest_name=REPORT_MANIFEST)
+    images = {}
+    for section in report.sections:
+        for fig in section.figures:
+            png = _render(fig.figure, "png")
+            target.write_bytes(f"{FIGURES}/{fig.name}.png", png)
+            target.write_bytes(f"{FIGURES}/{fig.name}.svg", _render(fig.figure, "svg"))
+            images[fig.name] = base64.b64encode(png).decode("ascii")
+    path = target.write_bytes(REPORT, _html(report, run, images))
+    target.finish()
+    return path
+
+
+def _render(fig: Figure, fmt: str) -> bytes:
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format=fmt, dpi=_DPI, metadata=_METADATA[fmt])
+    return buffer.getvalue()
+
+
+_CSS = """
+body { font-family: -apple-system, "Segoe UI", Helvetica, Arial, sans-serif; color: #222;
+       max-width: 1240px; margin: 0 auto; padding: 1em 1.5em 3em; line-height: 1.45; }
+h1 { font-size: 1.6em; margin-bottom: 0.2em; }
+h2 { font-size: 1.25em; border-bottom: 1px solid #ccc; padding-bottom: 0.2em; margin-top: 1.8em; }
+.meta { color: #666; font-size: 0.9em; }
+.verdict { border-left: 6px solid; padding: 0.6em 1em; margin: 1em 0; border-radius: 3px; }
+.verdict.ok { border-color: #2e7d32; background: #edf7ee; }
+.verdict.caution { border-color: #e0a800; background: #fdf6e0; }
+.verdict.bad { border-color: #c62828; background: #fdecea; }
+.verdict .headline { font-weight: 600; margin: 0 0 0.4em; }
+.verdict ul { margin: 0; padding-left: 1.3em; }
+table { border-collapse: collapse; margin: 0.8em 0; font-size: 0.92em; }
+th, td { border: 1px solid #ccc; padding: 0.25em 0.6em; }
+th { background: #f2f2f2; text-align: left; }
+td.num { text-align: right; font-variant-numeric: tabular-nums; white-space: nowrap; }
+figure { margin: 1.2em 0 1.8em; }
+figure img { max-width: 100%; height: auto; border: 1px solid #eee; }
+figcaption { color: #444; font-size: 0.9em; margin-top: 0.3em; }
+"""
+
+
+def _html(report: _Report, run: RunDirectory, images: Mapping[str, str]) -> str:
+    v = report.verdict
+    details = "".join(f"<li>{html.escape(d)}</li>" for d in v.details)
+    created = datetime.now(timezone.utc).isoformat(timespec="seconds")
+    parts = [
+        "<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
+        '<meta name="viewport" content="width=device-width, initial-scale=1">',
+        f"<title>{html.escape(report.title)}</title><style>{_CSS}</style></head><body>",
+        f"<h1>{html.escape(report.title)}</h1>",
+        f'<p class="meta">{html.escape(str(run.path))} &middot; '
+        f"{html.escape(run.manifest.get('command', ''))} &middot; fitstiff {__version__}, "
+        f"report made {created}</p>",
+        f'<div class="verdict {v.status}"><p class="headline">{html.escape(v.headline)}</p>'
+        + (f"<ul>{details}</ul>" if details else "") + "</div>",
+        "<h2>Estimates</h2>", report.summary,
+    ]
+    for section in report.sections:
+        parts += [f"<h2>{html.escape(section.title)}</h2>", section.html]
+        for fig in section.figures:
+            parts.append(f'<figure id="{fig.name}"><img alt="{html.escape(fig.caption)}" '
+                         f'src="data:image/png;base64,{images[fig.name]}">'
+                         f"<figcaption>{html.escape(fig.caption)} (figures/{fig.name}.png, "
+                         f".svg)</figcaption></figure>")
+    parts += ["<h2>Inputs</h2>",
+              _p("The logs were re-read from these files, checked against the SHA-256 the "
+                 "run's manifest recorded."),
+              _inputs_table(run), "</body></html>"]
+    return "\n".join(parts) + "\n"
