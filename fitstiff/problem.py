@@ -20,6 +20,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Iterable, Mapping, Sequence
+from typing import NamedTuple
 
 import equinox as eqx
 import numpy as np
@@ -33,7 +34,7 @@ from fitstiff.model import Model, build_model, parse_spec
 from fitstiff.params import Parameterization, find_param, named_params
 from fitstiff.segmentation import REGIONS, Segmentation, estimate_noise, segment
 
-__all__ = ["Problem", "NUISANCES", "channel_noise"]
+__all__ = ["Problem", "NUISANCES", "ResidualSeries", "channel_noise"]
 
 #: per-log nuisance names (fit.json ``per_log``)
 NUISANCES = ("offset", "friction_state0")
@@ -44,6 +45,16 @@ _FORCE_NOISE_FLOOR = 1e-3      # N
 def channel_noise(values: np.ndarray) -> float:
     """Gaussian-equivalent white-noise level of a sampled channel (MAD of 2nd differences)."""
     return estimate_noise(values)
+
+
+class ResidualSeries(NamedTuple):
+    """Where one log's channel lies in :meth:`Problem.residuals` (see
+    :meth:`Problem.residual_series`)."""
+
+    log: int          # index into Problem.logs
+    channel: str      # "force", "pressure_a" or "pressure_b"
+    span: slice       # its entries of the residual vector (padded length, in time order)
+    mask: np.ndarray  # (len,) bool: samples with weight > 0 (the others are exactly 0)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -234,7 +245,30 @@ class Problem:
             lj = lj + jnp.sum(jnp.log1p(-jnp.tanh(block) ** 2))
         return lj
 
+    def physical(self, theta):
+        """SI values of every entry of ``theta``, in the order of :attr:`names` (model
+        parameters through their transforms, offsets in N, initial states in (-1, 1))."""
+        _, nuisances = self.unpack(theta)
+        return jnp.concatenate([self.par.physical(theta[:self.par.size])]
+                               + [nuisances[n] for n in self.nuisance_names])
+
     # -- evaluation -----------------------------------------------------------------------
+    def residual_series(self) -> list[ResidualSeries]:
+        """The layout of :meth:`residuals`: one entry per log and observed channel, in the
+        order of the residual vector. Each covers its log's padded length in time order;
+        samples outside ``mask`` (padding, zero weight) have residual exactly 0."""
+        out, start = [], 0
+        for g in self._groups:
+            n = g.force.shape[1]
+            channels = [("force", g.weight)] + [
+                (f"pressure_{c}", w) for c, w in zip("ab", g.pressure_weight) if w is not None]
+            for channel, weight in channels:
+                for row, i in enumerate(g.index):
+                    out.append(ResidualSeries(i, channel, slice(start, start + n),
+                                              np.asarray(weight[row]) > 0))
+                    start += n
+        return out
+
     def displacements(self) -> tuple:
         """The displacement each group drives the model with, ``(L, N)`` per group."""
         return tuple(g.drive.displacement for g in self._groups)

@@ -1,0 +1,131 @@
+"""Calibration of the posterior: how often do the 90 % intervals cover the truth?
+
+Each dataset draws a truth over realistic ranges - pre-sliding slope 30-50 N/mm, breakaway
+14-21 N, polytropic exponent 1.0-1.4, force noise 0.1-0.3 N with lag-1 correlation 0-0.9
+(low-pass filtered force channels), 1 um displacement and 2 mbar pressure noise - and simulates
+two logs of the paper's cylinder (2 bar at 1 mm/s, 6 bar at 5 mm/s; triangle cycles of 0.05,
+0.2, 0.5 and 1 mm). ``chamber+dahl`` is fitted once, then sampled with each noise model; the
+score is the fraction of datasets whose 90 % interval (q05, q95) of the pre-sliding slope and
+of the breakaway force contains the true value, with its binomial standard error. A calibrated
+posterior covers 90 %.
+
+    python benchmarks/calibration.py --datasets 50 --json calibration.json
+    python benchmarks/calibration.py --datasets 3 --steps 600 --noise-models ar1
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import time
+
+import numpy as np
+
+from fitstiff.fitting import fit
+from fitstiff.log import Rig
+from fitstiff.posterior import sample_posterior
+from fitstiff.programs import TriangleCycles
+from fitstiff.simulate import Noise, simulate
+
+LOGS = ((2.0, 1.0), (6.0, 5.0))          # (supply bar, rate mm/s)
+AMPLITUDES_MM = (0.05, 0.2, 0.5, 1.0)
+UM_PER_SAMPLE = 5.0
+QUANTITIES = ("presliding_slope_N_per_mm", "breakaway_N")
+
+
+def draw_truth(rng: np.random.Generator) -> dict[str, float]:
+    """Seal, chamber and sensor values of one dataset (see the module docstring)."""
+    return {"sigma0": float(rng.uniform(30, 50)), "Fc": float(rng.uniform(14, 21)),
+            "n": float(rng.uniform(1.0, 1.4)), "force_N": float(rng.uniform(0.1, 0.3)),
+            "ar1": float(rng.uniform(0.0, 0.9))}
+
+
+def dataset(seed: int):
+    """Two logs and the truth (drawn values plus the true derived quantities)."""
+    rng = np.random.default_rng(seed)
+    truth = draw_truth(rng)
+    noise = Noise(force_N=truth["force_N"], displacement_um=1.0, pressure_mbar=2.0,
+                  ar1=truth["ar1"])
+    logs = []
+    for bar, rate in LOGS:
+        rig = Rig.from_mapping({"bore_mm": 32, "stroke_mm": 700, "start_position_mm": 350,
+                                "supply_bar": bar})
+        sim = simulate("chamber+dahl", TriangleCycles(rate_mm_s=rate, amplitudes_mm=AMPLITUDES_MM),
+                       rig=rig, params={k: truth[k] for k in ("sigma0", "Fc", "n")},
+                       noise=noise, seed=seed * 10 + int(bar), name=f"p{bar:g}",
+                       rate_hz=rate * 1e3 / UM_PER_SAMPLE)
+        logs.append(sim.log)
+    truth |= {k: float(sim.truth["derived"][k]) for k in QUANTITIES}
+    return logs, truth
+
+
+def score(seed: int, *, noise_models=("ar1", "gaussian"), walkers: int = 16, steps: int = 3000,
+          tau_multiple: float = 30.0) -> dict[str, object]:
+    """One dataset: fit, sample with each noise model, check the 90 % intervals."""
+    logs, truth = dataset(seed)
+    t0 = time.perf_counter()
+    result = fit(logs, "chamber+dahl")
+    row: dict[str, object] = {"seed": seed, "truth": truth, "fit_converged": result.converged,
+                              "fit_seconds": time.perf_counter() - t0,
+                              "residual_lag1": result.residual_autocorrelation}
+    for name in noise_models:
+        t0 = time.perf_counter()
+        post = sample_posterior(result, noise_model=name, walkers=walkers, steps=steps,
+                                tau_multiple=tau_multiple, seed=seed, progress=False, draws=1)
+        entry: dict[str, object] = {"converged": post.diagnostics.converged,
+                                    "steps": post.diagnostics.steps,
+                                    "max_tau": max(post.diagnostics.autocorr_time.values()),
+                                    "seconds": time.perf_counter() - t0}
+        for key in QUANTITIES:
+            s = post.summary(key)
+            entry[key] = {"q05": s["q05"], "q50": s["q50"], "q95": s["q95"],
+                          "covered": bool(s["q05"] <= truth[key] <= s["q95"])}
+        row[name] = entry
+    return row
+
+
+def coverage(rows, noise_model: str, key: str) -> tuple[float, float]:
+    """Fraction of rows whose interval covers the truth, and its binomial standard error."""
+    hits = [r[noise_model][key]["covered"] for r in rows]
+    p = float(np.mean(hits))
+    return p, math.sqrt(max(p * (1 - p), 1e-12) / len(hits))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--datasets", type=int, default=50)
+    parser.add_argument("--first-seed", type=int, default=0)
+    parser.add_argument("--noise-models", default="ar1,gaussian")
+    parser.add_argument("--walkers", type=int, default=16)
+    parser.add_argument("--steps", type=int, default=3000)
+    parser.add_argument("--tau-multiple", type=float, default=30.0)
+    parser.add_argument("--json", metavar="FILE")
+    args = parser.parse_args()
+    models = tuple(m for m in args.noise_models.split(",") if m)
+    rows = []
+    for seed in range(args.first_seed, args.first_seed + args.datasets):
+        row = score(seed, noise_models=models, walkers=args.walkers, steps=args.steps,
+                    tau_multiple=args.tau_multiple)
+        rows.append(row)
+        parts = [f"seed {seed:3d} ar1 {row['truth']['ar1']:.2f} lag1 {row['residual_lag1']:+.2f}"]
+        for m in models:
+            e = row[m]
+            marks = "".join("+" if e[k]["covered"] else "-" for k in QUANTITIES)
+            parts.append(f"{m} {marks} {'conv' if e['converged'] else 'NOT '} "
+                         f"tau {e['max_tau']:.0f} {e['seconds']:.0f}s")
+        print("  ".join(parts), flush=True)
+        if args.json:
+            with open(args.json, "w") as fh:
+                json.dump(rows, fh, indent=2)
+    for m in models:
+        for key in QUANTITIES:
+            p, se = coverage(rows, m, key)
+            print(f"{m:10s} {key:28s} 90 % interval coverage {100 * p:5.1f} % "
+                  f"+- {100 * se:.1f} ({len(rows)} datasets)")
+        conv = np.mean([r[m]["converged"] for r in rows])
+        print(f"{m:10s} converged in {100 * conv:.0f} % of the runs")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,123 @@
+"""``fitstiff posterior``: emcee posterior of a model given logs, resumable.
+
+Writes into ``--out``: ``posterior.json`` (DESIGN §5), ``chain.h5`` (the emcee chain),
+``posterior.nc`` (ArviZ InferenceData), ``predictive.npz`` (model-force draws for the report)
+and ``manifest.json``. While sampling, the chain grows in ``.chain.h5.partial.h5``; an interrupted
+run (Ctrl-C, ``kill``) keeps it, and ``--resume`` continues from its last step.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import signal
+import sys
+
+import numpy as np
+
+from fitstiff.cli._common import add_log_arguments, add_out_argument, logs_from_args
+from fitstiff.cli.fit import add_fit_arguments, fit_options, parse_fix
+from fitstiff.errors import InputError
+from fitstiff.likelihood import NOISE_MODELS
+from fitstiff.output import OutputDir, to_jsonable
+from fitstiff.posterior import DEFAULT_NOISE_MODEL, sample_posterior
+
+__all__ = ["add_parser", "run"]
+
+CHAIN = "chain.h5"
+INFERENCE_DATA = "posterior.nc"
+PREDICTIVE = "predictive.npz"
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    parser = subparsers.add_parser(
+        "posterior", help="emcee posterior, resumable",
+        description="Sample the posterior of a model given the logs with emcee, starting "
+                    "from the least-squares fit. Runs until the chain is longer than "
+                    "--tau-multiple autocorrelation times (or --steps), writes "
+                    "posterior.json, the chain (chain.h5), ArviZ InferenceData "
+                    "(posterior.nc), model-force draws (predictive.npz) and a manifest.")
+    add_log_arguments(parser)
+    add_fit_arguments(parser)
+    group = parser.add_argument_group("sampler")
+    group.add_argument("--walkers", type=int, default=32, metavar="N",
+                       help="ensemble size, at least twice the sampled coordinates (default 32)")
+    group.add_argument("--steps", type=int, default=20_000, metavar="N",
+                       help="step cap, including the steps of a resumed run (default 20000)")
+    group.add_argument("--tau-multiple", type=float, default=50.0, metavar="K",
+                       help="converged when the chain is K autocorrelation times long "
+                            "(default 50)")
+    group.add_argument("--check-every", type=int, default=500, metavar="N",
+                       help="steps between convergence checks (default 500)")
+    group.add_argument("--noise-model", choices=sorted(NOISE_MODELS), default=DEFAULT_NOISE_MODEL,
+                       help="ar1: autocorrelated residuals (default); gaussian: white; "
+                            "student_t: outliers")
+    group.add_argument("--priors", metavar="FILE",
+                       help='JSON priors in display units, e.g. {"sigma0": {"dist": "normal", '
+                            '"mean": 40, "sd": 10, "unit": "N/mm"}}')
+    group.add_argument("--thin", type=int, metavar="N",
+                       help="keep every N-th step (default: half the autocorrelation time)")
+    group.add_argument("--draws", type=int, default=200, metavar="N",
+                       help="posterior draws of the model force kept for the report "
+                            "(default 200)")
+    group.add_argument("--resume", action="store_true",
+                       help="continue the chain in --out (interrupted, or to more --steps)")
+    parser.add_argument("--json", action="store_true", help="print posterior.json to stdout")
+    add_out_argument(parser)
+    parser.set_defaults(func=run)
+    return parser
+
+
+def _raise_interrupt(signum, frame):
+    raise KeyboardInterrupt
+
+
+def run(args) -> int:
+    logs = logs_from_args(args)
+    options = fit_options(args)
+    inputs = [log.path for log in logs if log.path] + ([args.priors] if args.priors else [])
+    out = OutputDir(args.out, inputs=inputs, seed=args.seed,
+                    options={"model": args.model, "fix": args.fix, **options,
+                             "noise_model": args.noise_model, "walkers": args.walkers,
+                             "steps": args.steps, "tau_multiple": args.tau_multiple,
+                             "priors": args.priors, "resume": args.resume})
+    partial = out.temp_path(CHAIN)
+    if args.resume and not partial.exists():
+        if not (out.path / CHAIN).exists():
+            raise InputError(str(out.path), "--resume", f"holds no {CHAIN} to continue",
+                             "run without --resume first")
+        shutil.copyfile(out.path / CHAIN, partial)   # the finished chain stays until replaced
+    elif not args.resume:
+        partial.unlink(missing_ok=True)
+    previous = signal.signal(signal.SIGTERM, _raise_interrupt)
+    try:
+        posterior = sample_posterior(
+            logs, args.model, fix=parse_fix(args.fix, args.model), fit_options=options,
+            noise_model=args.noise_model, priors=args.priors, walkers=args.walkers,
+            steps=args.steps, tau_multiple=args.tau_multiple, check_every=args.check_every,
+            thin=args.thin, seed=args.seed, backend=partial, resume=args.resume,
+            draws=args.draws)
+    except KeyboardInterrupt:
+        if partial.exists():
+            sys.stderr.write(f"fitstiff posterior: the chain so far is kept in {partial}; "
+                             "continue it with --resume\n")
+        raise
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    out.commit(CHAIN)
+    posterior.to_inference_data().to_netcdf(str(out.temp_path(INFERENCE_DATA)))
+    out.commit(INFERENCE_DATA)
+    with open(out.temp_path(PREDICTIVE), "wb") as fh:
+        np.savez_compressed(fh, **posterior.predictive)
+    out.commit(PREDICTIVE)
+    content = posterior.to_dict() | {"outputs": {"chain": CHAIN, "inference_data": INFERENCE_DATA,
+                                                 "predictive": PREDICTIVE}}
+    out.write_json("posterior.json", content)
+    out.finish()
+    if args.json:
+        print(json.dumps(to_jsonable(content), indent=2))
+    else:
+        print(posterior.table())
+        print(f"wrote {out.path / 'posterior.json'}")
+    return 0

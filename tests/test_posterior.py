@@ -1,0 +1,268 @@
+"""Posterior: analytic moments, exact likelihoods, priors, recovery, calibration machinery,
+kill-and-resume, the CLI contract."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import h5py
+import numpy as np
+import pytest
+from conftest import REPO, polyline
+
+from benchmarks import calibration
+from fitstiff.cli import main
+from fitstiff.likelihood import AR1, Gaussian, Layout, StudentT
+from fitstiff.log import Log
+from fitstiff.posterior import sample_posterior
+from fitstiff.priors import Priors
+from fitstiff.problem import Problem, ResidualSeries
+from fitstiff.simulate import write_log
+
+FIG4 = REPO / "data" / "synthetic" / "fig4" / "p6bar_x350mm.csv"
+
+
+# -- exact likelihoods ------------------------------------------------------------------------
+def _layout(mask):
+    n = len(mask)
+    return Layout.from_series([ResidualSeries(0, "force", slice(0, n), np.asarray(mask))],
+                              ["force[x]"])
+
+
+def test_ar1_likelihood_is_the_exact_gaussian_one():
+    """-(n/2) log Q with Q = r' C^-1 r, C the stationary AR(1) covariance (unit innovations),
+    is the exact likelihood with the scale integrated out; padding is not data."""
+    rng = np.random.default_rng(0)
+    phi, n = 0.7, 60
+    r = rng.standard_normal(n)
+    cov = phi ** np.abs(np.subtract.outer(np.arange(n), np.arange(n))) / (1 - phi**2)
+    q = r @ np.linalg.solve(cov, r)
+    padded = np.concatenate([r, np.zeros(7)])
+    layout = _layout(np.arange(n + 7) < n)
+    ll = float(AR1(phi=(phi,)).log_likelihood(padded, layout))
+    assert ll == pytest.approx(-0.5 * n * np.log(q), rel=1e-12)
+    # the estimate of phi from the residuals: lag-1 regression over consecutive data
+    e = np.zeros(20000)
+    for k in range(1, e.size):
+        e[k] = 0.6 * e[k - 1] + rng.standard_normal()
+    assert AR1().prepared(e, _layout(np.ones(e.size, bool))).phi[0] == pytest.approx(0.6, abs=0.02)
+
+
+def test_student_t_scale_is_estimated_robustly():
+    rng = np.random.default_rng(1)
+    r = 2.5 * rng.standard_t(4, size=20000)
+    r[:200] = 1e3                                      # gross outliers
+    scale = StudentT(nu=4).prepared(r, _layout(np.ones(r.size, bool))).scale[0]
+    assert scale == pytest.approx(2.5, rel=0.05)
+
+
+# -- the analytic posterior -------------------------------------------------------------------
+def _linear_log(force=None):
+    t, x = polyline([0, 2e-3, -1e-3, 1.5e-3, -2e-3, 0.0], rate=2e-3, fs=100.0)
+    return Log("lin", displacement=x, force=np.zeros_like(x) if force is None else force,
+               time=t)
+
+
+def test_linear_model_posterior_matches_the_analytic_one():
+    """force = c v + drift t + offset + white noise; flat priors on (c, drift, offset) and the
+    Gaussian noise scale integrated out (Jeffreys): the posterior is a multivariate t with
+    n - 3 degrees of freedom about the OLS estimate, scale s^2 (X'X)^-1. c goes through the
+    log transform: its mean is off by ~0.2 sd unless the log-Jacobian is right."""
+    template = Problem([_linear_log()], "viscous+force_drift", denoise=False)
+
+    def design(c, drift):
+        model = template.par.with_values(template.model, {"c": c, "drift": drift})
+        return template.per_log(template.pack(model))[0]["force"]
+
+    v_col = design(1.0, 0.0)
+    x_mat = np.column_stack([v_col, design(1.0, 1.0) - v_col, np.ones_like(v_col)])
+    rng = np.random.default_rng(5)
+    truth = np.array([25.0, 0.02, 0.3])
+    y = x_mat @ truth + 0.2 * rng.standard_normal(v_col.size)
+    beta, rss, *_ = np.linalg.lstsq(x_mat, y, rcond=None)
+    nu = y.size - 3
+    cov = nu / (nu - 2) * rss[0] / nu * np.linalg.inv(x_mat.T @ x_mat)
+    sd = np.sqrt(np.diag(cov))
+    assert 3.5 < beta[0] / sd[0] < 8     # c > 0 barely truncates; a missing Jacobian: -0.25 sd
+
+    post = sample_posterior([_linear_log(y)], "viscous+force_drift",
+                            fit_options={"denoise": False}, noise_model=Gaussian(),
+                            priors={"c": {"dist": "flat"}}, walkers=32, steps=3000,
+                            check_every=1000, seed=2, progress=False, draws=10)
+    samples = post.samples.reshape(-1, 3)
+    assert post.names == ("c", "drift", "offset[lin]")
+    np.testing.assert_array_less(np.abs(samples.mean(0) - beta), 0.05 * sd)
+    np.testing.assert_allclose(samples.std(0), sd, rtol=0.05)
+    corr = np.corrcoef(samples.T)[0, 1]
+    assert corr == pytest.approx(cov[0, 1] / (sd[0] * sd[1]), abs=0.05)
+
+
+# -- priors -------------------------------------------------------------------------------------
+def test_default_priors_and_overrides(tmp_path):
+    problem = Problem([_linear_log()], "viscous+force_drift", denoise=False)
+    priors = Priors(problem)
+    assert priors.to_dict()["c"] == {"dist": "log_normal", "median": 50.0,
+                                     "sd_log": pytest.approx(np.log(10)), "unit": "N s/m"}
+    assert priors.to_dict()["drift"]["dist"] == "flat"
+    assert priors.to_dict()["offset[lin]"]["dist"] == "flat"
+    normal = Priors(problem, {"c": {"dist": "normal", "mean": 40, "sd": 10, "unit": "N s/m"}})
+    x = np.array([60.0, 0.0, 0.0])
+    assert float(normal.log_density(x)) == pytest.approx(-0.5 * 2.0**2)
+    bounded = Priors(problem, {"offset": {"dist": "uniform", "lower": -1, "upper": 1}})
+    assert float(bounded.log_density(np.array([60.0, 0.0, 2.0]))) == -np.inf
+
+
+@pytest.mark.parametrize("content, fragment", [
+    ({"sigma9": {"dist": "flat"}}, "prior 'sigma9': names no sampled parameter; use one of: c,"),
+    ({"c": {"dist": "normal", "mean": 40, "sd": 10, "unit": "N/mm"}},
+     "unit 'N/mm' differs from the parameter's display unit 'N s/m'; write the values in N s/m"),
+    ({"c": {"dist": "gamma"}}, "unknown dist 'gamma'; use one of: flat, uniform"),
+    ({"c": {"dist": "normal", "mean": 40}}, "missing sd; 'normal' takes mean, sd"),
+    ({"c": {"dist": "uniform", "lower": 5, "upper": 1}}, "needs lower < upper"),
+])
+def test_bad_priors_name_the_file_and_fix(tmp_path, content, fragment):
+    path = tmp_path / "priors.json"
+    path.write_text(json.dumps(content))
+    problem = Problem([_linear_log()], "viscous+force_drift", denoise=False)
+    with pytest.raises(ValueError) as info:
+        Priors(problem, path)
+    assert str(info.value).startswith(str(path))
+    assert fragment in str(info.value)
+
+
+# -- recovery and the CLI contract ---------------------------------------------------------------
+def test_cli_posterior_contains_truth_and_writes_every_file(tmp_path, capsys):
+    """Synthetic chamber+dahl log (fig4, 6 bar): the 90 % intervals of slope and breakaway
+    contain the truth; posterior.json follows DESIGN §5; InferenceData and draws are readable."""
+    import arviz as az
+
+    out = tmp_path / "post"
+    before = FIG4.read_bytes()
+    code = main(["posterior", str(FIG4), "--model", "chamber+dahl", "--walkers", "12",
+                 "--steps", "1500", "--tau-multiple", "20", "--seed", "4", "--out", str(out)])
+    assert code == 0
+    assert FIG4.read_bytes() == before
+    truth = json.loads(FIG4.with_suffix("").with_suffix(".truth.json").read_text())["derived"]
+    post = json.loads((out / "posterior.json").read_text())
+    assert post["model"] == "chamber+dahl"
+    for key in ("presliding_slope_N_per_mm", "breakaway_N"):
+        s = post["derived"][key]
+        assert set(s) == {"q05", "q50", "q95", "mean", "std", "unit"}
+        assert s["q05"] <= truth[key] <= s["q95"], (key, s, truth[key])
+    assert post["parameters"]["sigma0"]["unit"] == "N/mm"
+    diag = post["diagnostics"]
+    assert {"acceptance_fraction", "autocorr_time", "effective_samples", "converged", "reason",
+            "steps", "walkers", "noise_model"} <= set(diag)
+    assert diag["noise_model"] == "ar1" and diag["walkers"] == 12
+    assert set(diag["autocorr_time"]) == {"n", "sigma0", "Fc", "offset[p6bar_x350mm]",
+                                          "friction_state0[p6bar_x350mm]"}
+    assert isinstance(diag["converged"], bool) and diag["reason"]
+    assert post["files"] == [str(FIG4)]
+    idata = az.from_netcdf(out / "posterior.nc")
+    assert idata.posterior["sigma0"].shape[0] == 12
+    assert idata.posterior["sigma0"].attrs["unit"] == "N/mm"
+    assert float(idata.posterior["breakaway_N"].median()) == pytest.approx(
+        post["derived"]["breakaway_N"]["q50"], rel=1e-3)
+    draws = np.load(out / "predictive.npz")
+    curves = draws["log0_model_force_draws_N"]
+    assert curves.shape == (200, draws["log0_force_N"].size)
+    rms = np.sqrt(np.mean((np.median(curves, 0) - draws["log0_force_N"]) ** 2))
+    assert rms == pytest.approx(float(draws["log0_noise_sd_N"]), rel=0.2)
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert set(manifest["outputs"]) == {"chain.h5", "posterior.nc", "predictive.npz",
+                                        "posterior.json"}
+    assert not list(out.glob(".*partial*"))
+    with h5py.File(out / "chain.h5") as f:
+        assert f["mcmc"]["chain"].shape == (diag["steps"], 12, 5)
+
+
+@pytest.mark.parametrize("argv, fragment", [
+    (["--walkers", "4"], "--walkers 4: fewer than twice the 5 sampled coordinates"),
+    (["--resume"], "holds no chain.h5 to continue; run without --resume first"),
+    (["--priors", "missing.json"], "missing.json: --priors: cannot be read"),
+    (["--steps", "0"], "--steps 0: must be at least 1"),
+])
+def test_cli_bad_options_exit_2_with_one_line(tmp_path, capsys, argv, fragment):
+    code = main(["posterior", str(FIG4), "--out", str(tmp_path / "o")] + argv)
+    err = capsys.readouterr().err
+    assert code == 2
+    assert fragment in err and err.count("\n") == 1
+
+
+# -- kill and resume -------------------------------------------------------------------------
+def _chain(path):
+    with h5py.File(path) as f:
+        g = f["mcmc"]
+        n = int(g.attrs["iteration"])
+        return g["chain"][:n], g["log_prob"][:n]
+
+
+def test_killed_run_resumes_to_the_uninterrupted_chain(tmp_path):
+    """SIGTERM mid-run keeps the chain; --resume continues it from the stored random state,
+    ending with exactly the chain of an uninterrupted run."""
+    rng = np.random.default_rng(3)
+    log = _linear_log()
+    force = 15.0 * np.gradient(log.displacement, log.time) + 0.2 * rng.standard_normal(len(log))
+    csv = write_log(Log("lin", log.displacement, force, log.time), tmp_path / "lin.csv")[0]
+    argv = ["posterior", str(csv), "--model", "viscous", "--denoise", "off", "--walkers", "8",
+            "--steps", "6000", "--tau-multiple", "1000", "--check-every", "1000",
+            "--noise-model", "gaussian", "--seed", "9", "--draws", "5"]
+    killed = tmp_path / "killed"
+    env = dict(os.environ, FITSTIFF_CACHE_DIR="", HDF5_USE_FILE_LOCKING="FALSE",
+               PYTHONPATH=str(REPO))
+    proc = subprocess.Popen([sys.executable, "-m", "fitstiff"] + argv + ["--out", str(killed)],
+                            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    partial = killed / ".chain.h5.partial.h5"
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and proc.poll() is None:
+        try:
+            with h5py.File(partial, "r", locking=False) as f:
+                if int(f["mcmc"].attrs["iteration"]) > 0:
+                    break
+        except (OSError, KeyError):
+            pass
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err.decode()
+    assert b"continue it with --resume" in err
+    stopped_at = len(_chain(partial)[0])
+    assert 0 < stopped_at < 6000
+
+    assert main(argv + ["--out", str(killed), "--resume"]) == 0
+    straight = tmp_path / "straight"
+    assert main(argv + ["--out", str(straight)]) == 0
+    resumed_chain, resumed_lp = _chain(killed / "chain.h5")
+    chain, lp = _chain(straight / "chain.h5")
+    assert resumed_chain.shape == chain.shape and chain.shape[0] > stopped_at
+    np.testing.assert_array_equal(resumed_chain, chain)
+    np.testing.assert_array_equal(resumed_lp, lp)
+    a = json.loads((killed / "posterior.json").read_text())
+    b = json.loads((straight / "posterior.json").read_text())
+    assert a["parameters"] == b["parameters"]
+    # a chain sampled under other options is not continued, and is left in place
+    code = main(argv + ["--model", "viscous+force_drift", "--out", str(killed), "--resume"])
+    assert code == 2
+    np.testing.assert_array_equal(_chain(killed / "chain.h5")[0], chain)
+
+
+# -- calibration machinery --------------------------------------------------------------------
+def test_calibration_benchmark_runs_small():
+    """The calibration machinery on three datasets (the coverage itself needs >= 50: see
+    benchmarks/calibration.py)."""
+    rows = [calibration.score(seed, noise_models=("ar1",), walkers=16, steps=200,
+                              tau_multiple=50) for seed in range(3)]
+    for row in rows:
+        entry = row["ar1"]
+        assert not entry["converged"] and entry["steps"] == 200
+        for key in calibration.QUANTITIES:
+            q = entry[key]
+            assert q["q05"] < q["q50"] < q["q95"]
+            assert abs(q["q50"] / row["truth"][key] - 1) < 0.02
+    p, se = calibration.coverage(rows, "ar1", "breakaway_N")
+    assert 0 <= p <= 1 and se >= 0
