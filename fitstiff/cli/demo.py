@@ -1,0 +1,64 @@
+"""``fitstiff demo``: the whole pipeline on the bundled synthetic logs, ending in a report.
+
+Runs, as a user would, ``fitstiff fit`` and ``fitstiff posterior`` on the four Fig. 4-like
+logs shipped with the package (:func:`fitstiff.data.fig4_logs`) and writes the posterior's
+report: ``OUT/fit/``, ``OUT/posterior/`` with ``OUT/posterior/report.html``.
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Sequence
+
+from fitstiff.cli._common import add_out_argument
+from fitstiff.data import fig4_logs
+from fitstiff.report import REPORT, write_report
+
+__all__ = ["add_parser", "run", "MODEL", "CHAINS"]
+
+MODEL = "chamber+dahl"
+CHAINS: dict[str, dict[str, int]] = {
+    "default": {"steps": 1500, "check_every": 500, "draws": 100},
+    "quick": {"steps": 120, "check_every": 60, "draws": 20},
+}
+"""emcee settings of the demo: a short chain (the default needs about 1 750 steps to pass the
+50-autocorrelation-times rule, so its verdict may say so) and a smoke-test one (``--quick``)."""
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    parser = subparsers.add_parser(
+        "demo", help="the whole pipeline on bundled synthetic data",
+        description="Fit chamber+dahl to the bundled Fig. 4-like synthetic logs (the paper's "
+                    "32 mm rodless cylinder at 0, 2, 4 and 6 bar, true sigma0 = 40 N/mm, "
+                    "Fc = 18 N, n = 1.4), sample its posterior with a short emcee chain and "
+                    f"write the report: OUT/fit/, OUT/posterior/ and OUT/posterior/{REPORT}.")
+    add_out_argument(parser, default="fitstiff-demo")
+    parser.add_argument("--quick", action="store_true",
+                        help=f"a {CHAINS['quick']['steps']}-step chain instead of "
+                             f"{CHAINS['default']['steps']} (a smoke test: seconds, not minutes)")
+    parser.set_defaults(func=run)
+    return parser
+
+
+def run(args) -> int:
+    chain = CHAINS["quick" if args.quick else "default"]
+    logs = [str(path) for path in fig4_logs()]
+    fit_dir, posterior_dir = args.out / "fit", args.out / "posterior"
+    _subcommand(["fit", *logs, "--model", MODEL, "--out", str(fit_dir)])
+    _subcommand(["posterior", *logs, "--model", MODEL, "--steps", str(chain["steps"]),
+                 "--check-every", str(chain["check_every"]), "--draws", str(chain["draws"]),
+                 "--out", str(posterior_dir)])
+    print(f"\n$ fitstiff report {posterior_dir}")
+    report = write_report(posterior_dir, draws=chain["draws"])
+    print(f"\nThe report: {report}\n(open it in a browser; the least-squares fit's own report: "
+          f"fitstiff report {fit_dir})")
+    return 0
+
+
+def _subcommand(argv: Sequence[str]) -> None:
+    """Run one fitstiff subcommand in this process, echoing its command line."""
+    from fitstiff.cli import build_parser
+
+    print(f"\n$ fitstiff {' '.join(argv)}", flush=True)
+    args = build_parser().parse_args(list(argv))
+    args.func(args)

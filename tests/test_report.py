@@ -1,0 +1,190 @@
+"""fitstiff report and fitstiff demo: self-contained pages, every figure twice, verified inputs,
+the quick demo end to end, the page rendered in headless Chromium."""
+
+from __future__ import annotations
+
+import base64
+import hashlib
+import json
+import re
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import REPO
+from matplotlib.image import imread
+
+from fitstiff.cli import main
+from fitstiff.data import fig4_logs
+from fitstiff.errors import InputError
+from fitstiff.report import FIGURES, REPORT, REPORT_MANIFEST, write_report
+
+CHROMIUM = shutil.which("chromium")
+CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic",
+                  "--no-first-run", "--disable-background-networking",
+                  "--disable-component-update", "--disable-sync"]
+IMG = re.compile(r"<img\b[^>]*\bsrc=\"([^\"]*)\"")
+
+
+@pytest.fixture(scope="module")
+def demo(tmp_path_factory) -> Path:
+    """``fitstiff demo --quick``: OUT/fit, OUT/posterior with its report."""
+    out = tmp_path_factory.mktemp("demo")
+    assert main(["demo", "--quick", "--out", str(out)]) == 0
+    return out
+
+
+@pytest.fixture(scope="module")
+def fit_report(demo) -> Path:
+    return write_report(demo / "fit")
+
+
+def check_page(report: Path, figures: set[str]) -> None:
+    """One HTML file whose images are all embedded PNGs, with no script and no reference
+    outside it; every figure in figures/ as PNG and SVG, the same ones as on the page."""
+    page = report.read_text(encoding="utf-8")
+    sources = IMG.findall(page)
+    assert len(sources) == len(figures)
+    for src in sources:
+        prefix = "data:image/png;base64,"
+        assert src.startswith(prefix)
+        assert base64.b64decode(src[len(prefix):])[:8] == b"\x89PNG\r\n\x1a\n"
+    assert not re.search(r"(src|href)\s*=\s*[\"']?\s*(https?:)?//", page, re.IGNORECASE)
+    assert not re.search(r"<(script|link|iframe|object)\b|@import|url\(", page, re.IGNORECASE)
+    written = sorted(p.name for p in (report.parent / FIGURES).iterdir())
+    assert written == sorted(f"{name}.{ext}" for name in figures for ext in ("png", "svg"))
+    for name in figures:
+        assert (report.parent / FIGURES / f"{name}.svg").read_text().lstrip().startswith("<?xml")
+        assert f'id="{name}"' in page
+
+
+def loop_figures(kind: str) -> set[str]:
+    return {f"{kind}_{p.stem}" for p in fig4_logs()}
+
+
+def test_bundled_logs_are_the_generated_ones():
+    bundled = sorted(p for p in fig4_logs()[0].parent.iterdir())
+    assert [p.name for p in bundled] == [f"p{bar}bar_x350mm.{ext}" for bar in (0, 2, 4, 6)
+                                         for ext in ("csv", "json", "truth.json")]
+    for path in bundled:
+        original = REPO / "data" / "synthetic" / "fig4" / path.name
+        assert hashlib.sha256(path.read_bytes()).digest() == \
+            hashlib.sha256(original.read_bytes()).digest(), path.name
+
+
+def test_demo_ends_in_a_posterior_report(demo, capsys):
+    report = demo / "posterior" / REPORT
+    figures = (loop_figures("loop") | loop_figures("residuals")
+               | {"chamber_vs_seal", "corner", "trace_n", "trace_sigma0", "trace_Fc"})
+    check_page(report, figures)
+    page = report.read_text(encoding="utf-8")
+    assert "Posterior report: chamber+dahl" in page
+    # a 120-step chain: the verdict says it did not converge, and why
+    assert re.search(r"The chain did NOT converge: [^<]*--steps 120", page)
+    assert re.search(r"Mean acceptance fraction 0\.\d\d", page)
+    assert "Effective samples: fewest" in page
+    # the truth of the synthetic logs is in the table (sigma0 = 40 N/mm)
+    assert re.search(r"<td class=\"name\">sigma0</td>.*?<td class=\"num\">40</td></tr>", page)
+    manifest = json.loads((demo / "posterior" / REPORT_MANIFEST).read_text())
+    assert manifest["options"]["kind"] == "posterior"
+    assert "posterior.json" in json.loads((demo / "posterior" / "manifest.json").read_text())[
+        "outputs"]                                  # the run's own manifest is untouched
+
+
+def test_fit_report(fit_report):
+    figures = loop_figures("loop") | loop_figures("residuals") | {"chamber_vs_seal"}
+    check_page(fit_report, figures)
+    page = fit_report.read_text(encoding="utf-8")
+    assert "The fit converged (lm, " in page
+    assert re.search(r"<td class=\"name\">Fc</td><td class=\"num\">18\.0\d*</td>", page)
+    assert fit_report.parent.joinpath("fit.json").is_file()
+
+
+@pytest.fixture
+def moved_fit(demo, tmp_path) -> tuple[Path, Path]:
+    """A copy of the demo's fit directory whose inputs are copies of the bundled logs."""
+    logs = tmp_path / "logs"
+    shutil.copytree(fig4_logs()[0].parent, logs)
+    run = tmp_path / "fit"
+    shutil.copytree(demo / "fit", run, ignore=shutil.ignore_patterns(FIGURES, "report*"))
+    for name in ("manifest.json", "fit.json"):
+        text = (run / name).read_text().replace(str(fig4_logs()[0].parent), str(logs))
+        (run / name).write_text(text)
+    return run, logs / "p2bar_x350mm.csv"
+
+
+def test_changed_or_missing_input_is_one_line_exit_2(moved_fit, capsys):
+    run, log = moved_fit
+    lines = log.read_text().splitlines(keepends=True)
+    log.write_text("".join(lines[:-1]))                          # one row fewer
+    assert main(["report", str(run)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1
+    assert err.startswith(f"fitstiff report: error: {log}: input of the run in "
+                          f"{run / 'manifest.json'}: has changed since the run (sha256 ")
+    assert err.rstrip().endswith("restore the original file or run again on the new one")
+    log.unlink()
+    assert main(["report", str(run)]) == 2
+    assert capsys.readouterr().err == (f"fitstiff report: error: {log}: input of the run in "
+                                       f"{run / 'manifest.json'}: is missing; restore the file "
+                                       "or run again\n")
+    assert not (run / REPORT).exists()
+
+
+def test_a_fit_the_logs_do_not_reproduce_is_refused(moved_fit):
+    run, _ = moved_fit
+    fit = json.loads((run / "fit.json").read_text())
+    fit["parameters"]["Fc"]["value"] *= 1.05
+    (run / "fit.json").write_text(json.dumps(fit))
+    with pytest.raises(InputError, match=r"fit\.json: log p0bar_x350mm: the fitted model gives "
+                                         r"an RMS residual of .* N on the re-read log, fit\.json "
+                                         r"says 0\.207\d* N; the log was read"):
+        write_report(run)
+
+
+@pytest.mark.parametrize("setup, message", [
+    (lambda d: None, "holds none of posterior.json, fit.json"),
+    (lambda d: (d / "fit.json").write_text("{}"), "manifest.json: file: is missing; the run did "
+                                                  "not finish"),
+])
+def test_not_a_run_directory(tmp_path, setup, message):
+    setup(tmp_path)
+    with pytest.raises(InputError, match=re.escape(message)):
+        write_report(tmp_path)
+
+
+def chromium(*args: str, profile: Path) -> str:
+    done = subprocess.run([CHROMIUM, *CHROMIUM_FLAGS, f"--user-data-dir={profile}", *args],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr[-2000:]
+    return done.stdout
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason="chromium is not installed (apt-get install "
+                                               "chromium; .ci/run installs it)")
+def test_posterior_report_renders_in_chromium(demo, tmp_path):
+    """The page as a browser shows it: a screenshot that is not blank, and every image loaded
+    (a script in a test copy of the page counts images with no natural width once the page
+    has loaded; one deliberately broken image proves that it counts)."""
+    report = demo / "posterior" / REPORT
+    shot = tmp_path / "shot.png"
+    chromium(f"--screenshot={shot}", "--window-size=1200,3000", report.as_uri(),
+             profile=tmp_path / "profile")
+    pixels = imread(shot)[..., :3]
+    assert pixels.shape[:2] == (3000, 1200)
+    assert np.mean(np.any(pixels < 0.9, axis=-1)) > 0.05           # ink, not a white page
+    assert np.std(pixels) > 0.1
+
+    page = report.read_text(encoding="utf-8")
+    n_images = len(IMG.findall(page))
+    probe = ('<img src="data:image/png;base64,AAAA"><script>window.addEventListener("load", '
+             '() => { const images = Array.from(document.images); document.title = '
+             '`images ${images.length} broken ${images.filter(i => !i.complete || '
+             'i.naturalWidth === 0).length}`; });</script></body>')
+    copy = tmp_path / "probe.html"
+    copy.write_text(page.replace("</body>", probe), encoding="utf-8")
+    dom = chromium("--virtual-time-budget=20000", "--dump-dom", copy.as_uri(),
+                   profile=tmp_path / "profile")
+    assert f"<title>images {n_images + 1} broken 1</title>" in dom
