@@ -18,7 +18,7 @@ from fitstiff.fitting import FitResult, fit, fit_problem
 from fitstiff.log import Log
 from fitstiff.model import Model
 from fitstiff.params import named_params
-from fitstiff.problem import Problem
+from fitstiff.problem import PROBLEM_OPTIONS, Problem
 
 __all__ = ["Comparison", "compare", "held_out_rms", "predict_held_out"]
 
@@ -35,8 +35,7 @@ def held_out_rms(logs: Sequence[Log], model: Model | str, **fit_kw) -> list[floa
     """Leave-one-log-out RMS force errors (N), one per log (needs two logs or more)."""
     if len(logs) < 2:
         raise ValueError("held-out error over logs needs at least two logs")
-    problem_kw = {k: fit_kw[k] for k in ("denoise", "sample_range", "weights", "skip")
-                  if k in fit_kw}
+    problem_kw = {k: fit_kw[k] for k in PROBLEM_OPTIONS if k in fit_kw}
     out = []
     for i in range(len(logs)):
         train = [log for j, log in enumerate(logs) if j != i]

@@ -77,20 +77,24 @@ class Drive(eqx.Module):
 
 def make_drive(*, displacement, time=None, rig: Rig | None = None, pressure_a=None,
                pressure_b=None, vented=(), still=None, name: str = "",
-               needs_chamber: bool = False, friction_state0: float = 0.0,
-               force_offset: float = 0.0, what: str = "the chamber term") -> Drive:
+               needs_chamber: bool = False, needs_supply: bool = True,
+               friction_state0: float = 0.0, force_offset: float = 0.0,
+               what: str = "the chamber term") -> Drive:
     """Build a drive from arrays (SI; pressures absolute).
 
     ``needs_chamber``: require the rig values the chamber force needs (bore; and stroke,
     start position and supply pressure for a closed chamber); a missing one is an
     :class:`~fitstiff.errors.InputError` naming the sidecar key and the flag.
+    ``needs_supply=False``: the closing pressure will be fitted, so a missing
+    ``supply_bar`` is no error and logged pressures are observations of closed chambers
+    (closed chambers start at ambient until the fit sets the closing pressure).
     """
     rig = rig or Rig()
     x = np.asarray(displacement, dtype=float)
     n = x.shape[0]
     has_time = time is not None
     t = np.asarray(time, dtype=float) if has_time else np.arange(n, dtype=float)
-    closed_by_rig = rig.supply_pressure is not None
+    closed_by_rig = rig.supply_pressure is not None or not needs_supply
     modes, observed = [], []
     for chamber, p in (("a", pressure_a), ("b", pressure_b)):
         if chamber in vented:
@@ -109,7 +113,9 @@ def make_drive(*, displacement, time=None, rig: Rig | None = None, pressure_a=No
         if "closed" in modes:
             stroke = rig.require("stroke", needed_for=f"{what} (closed chamber)")
             x0 = rig.require("start_position", needed_for=f"{what} (closed chamber)")
-            supply = rig.require("supply_pressure", needed_for=f"{what} (closed chamber)")
+            if needs_supply:
+                supply = rig.require("supply_pressure",
+                                     needed_for=f"{what} (closed chamber)")
             l_a0 = x0 + (rig.dead_length_a or 0.0)
             l_b0 = stroke - x0 + (rig.dead_length_b or 0.0)
     p0 = (supply if supply is not None else 0.0) + p_amb
@@ -128,10 +134,10 @@ def make_drive(*, displacement, time=None, rig: Rig | None = None, pressure_a=No
         name=name)
 
 
-def drive_from_log(log: Log, *, needs_chamber: bool = False, still=None,
-                   what: str = "the chamber term") -> Drive:
+def drive_from_log(log: Log, *, needs_chamber: bool = False, needs_supply: bool = True,
+                   still=None, what: str = "the chamber term") -> Drive:
     """The drive of a :class:`~fitstiff.log.Log`."""
     return make_drive(displacement=log.displacement, time=log.time, rig=log.rig,
                       pressure_a=log.pressure_a, pressure_b=log.pressure_b,
                       vented=log.vented, still=still, name=log.name,
-                      needs_chamber=needs_chamber, what=what)
+                      needs_chamber=needs_chamber, needs_supply=needs_supply, what=what)

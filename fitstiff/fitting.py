@@ -250,7 +250,8 @@ def initial_guess(problem: Problem) -> tuple[Model, dict[str, np.ndarray]]:
     keep = {n: v for n, v in par_all.values(model).items() if n in fixed}
     if keep:
         guess = Parameterization(guess).with_values(guess, keep)
-    return guess, {"offset": np.asarray(offsets), "friction_state0": np.asarray(states)}
+    return guess, {"offset": np.asarray(offsets), "friction_state0": np.asarray(states),
+                   "closing_pressure": problem.closing_pressure_start()}
 
 
 # -- the fit --------------------------------------------------------------------------------
@@ -258,7 +259,8 @@ def fit(logs: Sequence[Log], model: Model | str, *, fix: Mapping[str, float] | I
         solver: str = "lm", starts: int = 1, seed: int = 0, max_steps: int = 400,
         rtol: float = 1e-5, atol: float = 1e-5, denoise: bool | str = "auto",
         sample_range: tuple[int | None, int | None] | None = None,
-        weights: Mapping[str, float] | None = None, skip: int = 0) -> FitResult:
+        weights: Mapping[str, float] | None = None, skip: int = 0,
+        free: Iterable[str] = ()) -> FitResult:
     """Fit ``model`` jointly to ``logs`` by nonlinear least squares.
 
     Args:
@@ -269,7 +271,8 @@ def fit(logs: Sequence[Log], model: Model | str, *, fix: Mapping[str, float] | I
         solver: one of :data:`SOLVERS` (Levenberg-Marquardt by default).
         starts: number of starts; the first from :func:`initial_guess`, the others random
             perturbations of it (``seed``); the best converged run is kept.
-        denoise, sample_range, weights, skip: see :class:`~fitstiff.problem.Problem`.
+        denoise, sample_range, weights, skip, free: see :class:`~fitstiff.problem.Problem`
+            (``free=["closing_pressure"]`` fits each log's closing pressure).
 
     Returns:
         A :class:`FitResult`; ``converged`` is False (with ``message``) when the solver did
@@ -280,7 +283,7 @@ def fit(logs: Sequence[Log], model: Model | str, *, fix: Mapping[str, float] | I
         >>> print(result.table())                                        # doctest: +SKIP
     """
     problem = Problem(logs, model, fix=fix, denoise=denoise, sample_range=sample_range,
-                      weights=weights, skip=skip)
+                      weights=weights, skip=skip, free=free)
     return fit_problem(problem, solver=solver, starts=starts, seed=seed, max_steps=max_steps,
                        rtol=rtol, atol=atol)
 
@@ -439,6 +442,10 @@ def _summarise(problem: Problem, theta, *, converged: bool, message: str, steps:
                  "friction_state0": (float(nuis["friction_state0"][i])
                                      if "friction_state0" in nuis else None),
                  "chamber_stiffness_N_per_mm": _finite(k_ch),
+                 "closing_pressure_bar": (float(nuis["closing_pressure"][i]) / 1e5
+                                          if "closing_pressure" in nuis else
+                                          (log.rig.supply_pressure / 1e5
+                                           if log.rig.supply_pressure is not None else None)),
                  "force_noise_N": problem.force_noise[i],
                  "displacement_noise_um": problem.displacement_noise[i] * 1e6,
                  "denoised_displacement": problem.denoised[i]}

@@ -6,7 +6,9 @@ Shared by least squares (:mod:`fitstiff.fitting`) and the posterior
 The flat vector ``theta`` is ``[shared model parameters (unconstrained), per-log nuisances]``.
 Per-log nuisances are the force-channel offset (N, always) and, for models with a friction
 base, the initial friction state (fraction of saturation in (-1, 1), through ``tanh``): a log
-may start mid-hysteresis. Either can be fixed with ``fix``.
+may start mid-hysteresis. Either can be fixed with ``fix``. On request (``free``) the closing
+pressure of each log's closed chambers is a nuisance too (bar gauge in ``theta``), for logs
+whose ``supply_bar`` is unknown or doubtful.
 
 Residuals are whitened per channel: force residuals divided by the log's force-noise estimate,
 and, for closed chambers whose pressure is logged, pressure residuals divided by the
@@ -34,10 +36,16 @@ from fitstiff.model import Model, build_model, parse_spec
 from fitstiff.params import Parameterization, find_param, named_params
 from fitstiff.segmentation import REGIONS, Segmentation, estimate_noise, segment
 
-__all__ = ["Problem", "NUISANCES", "ResidualSeries", "channel_noise"]
+__all__ = ["Problem", "NUISANCES", "OPTIONAL_NUISANCES", "PROBLEM_OPTIONS", "ResidualSeries",
+           "channel_noise"]
 
 #: per-log nuisance names (fit.json ``per_log``)
-NUISANCES = ("offset", "friction_state0")
+NUISANCES = ("offset", "friction_state0", "closing_pressure")
+#: keyword options of :class:`Problem` that a fit passes through (and a report must repeat)
+PROBLEM_OPTIONS = ("denoise", "sample_range", "weights", "skip", "free")
+#: nuisances held unless asked for with ``free``
+OPTIONAL_NUISANCES = ("closing_pressure",)
+_DEFAULT_CLOSING_PA = 5e5      # gauge start value when neither rig nor log says more
 _PRESSURE_NOISE_FLOOR = 10.0   # Pa, below any real sensor
 _FORCE_NOISE_FLOOR = 1e-3      # N
 
@@ -85,14 +93,22 @@ class Problem:
         weights: extra weight per segmentation region, e.g. ``{"presliding": 4.0}``.
         skip: samples at the start of every log that drive the model but weigh 0 (a warm-up
             that settles the friction state).
+        free: optional nuisances to fit: ``"closing_pressure"`` (each log's closing pressure
+            of its closed chambers; ``supply_bar`` then only gives the start value).
     """
 
     def __init__(self, logs: Sequence[Log], model: Model | str, *,
                  fix: Mapping[str, float | None] | Iterable[str] = (), denoise: bool | str = "auto",
                  sample_range: tuple[int | None, int | None] | None = None,
-                 weights: Mapping[str, float] | None = None, skip: int = 0):
+                 weights: Mapping[str, float] | None = None, skip: int = 0,
+                 free: Iterable[str] = ()):
         if not logs:
             raise InputError(None, "logs", "none given", "name at least one CSV log")
+        free = set(free)
+        if free - set(OPTIONAL_NUISANCES):
+            raise InputError(None, f"--free {', '.join(sorted(free - set(OPTIONAL_NUISANCES)))}",
+                             "is not an optional nuisance",
+                             f"use one of: {', '.join(OPTIONAL_NUISANCES)}")
         self.logs = list(logs)
         self.segmentations: list[Segmentation] = [segment(log) for log in self.logs]
         spec = model if isinstance(model, str) else model.spec
@@ -104,7 +120,8 @@ class Problem:
         for log, seg, den in zip(self.logs, self.segmentations, self.denoised):
             still = (seg.region == REGIONS.index("standstill")).astype(float)
             drive = drive_from_log(log, needs_chamber=needs, still=still,
-                                   what=f"model '{spec}'")
+                                   what=f"model '{spec}'",
+                                   needs_supply="closing_pressure" not in free)
             if den:
                 x = denoise_displacement(log.displacement, seg.reversals)
                 drive = eqx.tree_at(lambda d: d.displacement, drive, jnp.asarray(x))
@@ -124,8 +141,15 @@ class Problem:
         self.model = built
         self.par = Parameterization(built, fixed=model_fixed)
         self.has_friction = bool(built.of_kind("friction"))
-        self.nuisance_names = [n for n in NUISANCES if n not in self.fixed_nuisances
-                               and (n != "friction_state0" or self.has_friction)]
+        closed = any("closed" in d.modes for d in self.drives) and built.has("chamber")
+        if "closing_pressure" in free and not closed:
+            raise InputError(None, "--free closing_pressure",
+                             "no log has a closed, modelled chamber",
+                             "drop the option (logged pressures are used as they are)")
+        applicable = {"offset": True, "friction_state0": self.has_friction,
+                      "closing_pressure": "closing_pressure" in free}
+        self.nuisance_names = [n for n in NUISANCES
+                               if n not in self.fixed_nuisances and applicable[n]]
         self.force_noise = [max(channel_noise(log.force), _FORCE_NOISE_FLOOR)
                             for log in self.logs]
         self.pressure_noise = [
@@ -215,14 +239,33 @@ class Problem:
     def size(self) -> int:
         return self.par.size + len(self.nuisance_names) * self.n_logs
 
+    def closing_pressure_start(self) -> np.ndarray:
+        """Start values (Pa gauge) of the closing pressures: the rig's ``supply_bar``, else the
+        first logged pressure of a closed chamber, else 5 bar."""
+        out = []
+        for log, drive in zip(self.logs, self.drives):
+            value = log.rig.supply_pressure
+            for c, chamber in enumerate("ab"):
+                gauge = log.gauge(chamber)
+                if value is None and drive.observed[c] and gauge is not None:
+                    value = float(gauge[0])
+            out.append(_DEFAULT_CLOSING_PA if value is None else value)
+        return np.asarray(out)
+
     def pack(self, model: Model, nuisances: Mapping[str, Sequence[float]] | None = None):
         """theta from a model and per-log nuisance values (``offset`` in N,
-        ``friction_state0`` in (-1, 1)); missing nuisances are 0."""
+        ``friction_state0`` in (-1, 1), ``closing_pressure`` in Pa gauge); missing offsets
+        and states are 0, missing closing pressures :meth:`closing_pressure_start`."""
         parts = [np.asarray(self.par.to_unconstrained(model))]
+        nuisances = dict(nuisances or {})
+        nuisances.setdefault("closing_pressure", self.closing_pressure_start())
         for name in self.nuisance_names:
-            values = np.asarray((nuisances or {}).get(name, np.zeros(self.n_logs)), float)
-            parts.append(np.arctanh(np.clip(values, -0.999, 0.999))
-                         if name == "friction_state0" else values)
+            values = np.asarray(nuisances.get(name, np.zeros(self.n_logs)), float)
+            if name == "friction_state0":
+                values = np.arctanh(np.clip(values, -0.999, 0.999))
+            elif name == "closing_pressure":
+                values = values / 1e5          # bar in theta: comparable scale to the rest
+            parts.append(values)
         return jnp.asarray(np.concatenate(parts))
 
     def unpack(self, theta):
@@ -231,13 +274,15 @@ class Problem:
         out, off = {}, self.par.size
         for name in self.nuisance_names:
             block = theta[off:off + self.n_logs]
-            out[name] = jnp.tanh(block) if name == "friction_state0" else block
+            out[name] = (jnp.tanh(block) if name == "friction_state0" else
+                         block * 1e5 if name == "closing_pressure" else block)
             off += self.n_logs
         return model, out
 
     def log_jacobian(self, theta):
-        """log |d(physical)/d(theta)| of the model part (nuisances: offsets flat; the
-        initial friction state's tanh Jacobian is included)."""
+        """log |d(physical)/d(theta)| of the model part (nuisances: offsets and closing
+        pressures linear, constant Jacobian left out; the initial friction state's tanh
+        Jacobian is included)."""
         lj = self.par.log_jacobian(theta[:self.par.size])
         if "friction_state0" in self.nuisance_names:
             off = self.par.size + self.nuisance_names.index("friction_state0") * self.n_logs
@@ -299,6 +344,9 @@ class Problem:
         if "friction_state0" in nuisances:
             drive = eqx.tree_at(lambda d: d.friction_state0, drive,
                                 nuisances["friction_state0"][idx])
+        if "closing_pressure" in nuisances:
+            p0 = drive.p_amb + nuisances["closing_pressure"][idx]
+            drive = eqx.tree_at(lambda d: (d.p_a0, d.p_b0), drive, (p0, p0))
         return drive
 
     def predictions(self, theta, displacements=None):

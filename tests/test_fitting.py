@@ -149,3 +149,21 @@ def test_real_oring_files_fit_jointly(tmp_path, capsys):
     assert data["converged"]
     assert 2 < data["derived"]["breakaway_N"]["value"] < 20
     assert len(data["files"]) == 4
+
+
+def test_closing_pressure_can_be_a_per_log_nuisance():
+    """Logs whose supply pressure nobody wrote down: --free closing_pressure recovers it from
+    the logged chamber pressures (and the force), per log."""
+    logs = []
+    for bar in (2.0, 5.0):
+        rig = Rig.from_mapping({"bore_mm": 32, "stroke_mm": 700, "start_position_mm": 100,
+                                "supply_bar": bar})
+        sim = simulate("chamber+dahl", TriangleCycles(rate_mm_s=1.0, amplitudes_mm=(0.2, 1.0)),
+                       rig=rig, seed=int(bar), name=f"p{bar:g}", rate_hz=200)
+        unknown = Rig.from_mapping({"bore_mm": 32, "stroke_mm": 700, "start_position_mm": 100})
+        logs.append(sim.log.replace(rig=unknown))
+    result = fit(logs, "chamber+dahl", free=["closing_pressure"])
+    assert result.converged
+    assert [log["closing_pressure_bar"] for log in result.per_log] == [
+        pytest.approx(2.0, abs=0.01), pytest.approx(5.0, abs=0.01)]
+    assert result.value("n") == pytest.approx(1.3, abs=0.02)

@@ -12,6 +12,7 @@ from fitstiff.fitting import SOLVERS, fit
 from fitstiff.model import build_model
 from fitstiff.output import OutputDir, to_jsonable
 from fitstiff.params import find_param
+from fitstiff.problem import OPTIONAL_NUISANCES
 from fitstiff.segmentation import REGIONS
 
 __all__ = ["add_parser", "run", "parse_fix", "fit_options"]
@@ -43,6 +44,10 @@ def add_fit_arguments(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--fix", action="append", default=[], metavar="NAME[=VALUE]",
                        help="hold a parameter (value in its display unit, e.g. n=1.4 or "
                             "sigma0=40); 'offset' / 'friction_state0' fix those nuisances")
+    group.add_argument("--free", action="append", default=[], choices=OPTIONAL_NUISANCES,
+                       help="also fit this per-log nuisance: closing_pressure (each log's "
+                            "closing pressure of its closed chambers; supply_bar then only "
+                            "starts it)")
     group.add_argument("--solver", choices=sorted(SOLVERS), default="lm")
     group.add_argument("--starts", type=int, default=1, metavar="N",
                        help="random restarts around the data-driven start (default 1)")
@@ -116,7 +121,7 @@ def fit_options(args) -> dict[str, object]:
             "max_steps": args.max_steps,
             "denoise": {"auto": "auto", "on": True, "off": False}[args.denoise],
             "sample_range": _range(args.range), "skip": args.skip,
-            "weights": _weights(args.weight)}
+            "weights": _weights(args.weight), "free": args.free}
 
 
 def run(args) -> int:
