@@ -15,7 +15,7 @@ manifest of another run in the same directory is not mistaken for this one's. A 
 :class:`~fitstiff.errors.InputError` naming it), with the manifest's reading options
 (``options["reading"]``: keyword arguments of :func:`~fitstiff.loading.load_logs`, when
 recorded) and rebuilds the :class:`~fitstiff.problem.Problem` with the recorded model, fixed
-parameters and problem options (``denoise``, ``sample_range``, ``weights``, ``skip``).
+parameters and problem options (:data:`~fitstiff.problem.PROBLEM_OPTIONS`).
 
 **The model's curves are recomputed, not stored.** Fit: the parameters of ``fit.json`` and each
 log's offset and initial friction state give the fitted ``theta`` exactly; the report then
@@ -59,7 +59,7 @@ from fitstiff.log import Log
 from fitstiff.model import Model, build_model
 from fitstiff.output import OutputDir, sha256_file
 from fitstiff.params import find_param
-from fitstiff.problem import NUISANCES, Problem
+from fitstiff.problem import NUISANCES, PROBLEM_OPTIONS, Problem
 from fitstiff.stiffness import MM
 
 __all__ = ["FIGURES", "REPORT", "REPORT_MANIFEST", "RESULT_FILES", "ReportFigure",
@@ -75,6 +75,9 @@ RESULT_FILES: Mapping[str, str] = {"posterior": "posterior.json", "fit": "fit.js
 """Report kind -> the result file that makes a directory one of that kind (checked in order)."""
 
 _Z90 = 1.6448536269514722       # two-sided 90 % of a standard normal
+_PER_LOG_NUISANCES = {"offset": ("offset_N", 1.0), "friction_state0": ("friction_state0", 1.0),
+                      "closing_pressure": ("closing_pressure_bar", 1e5)}
+"""Nuisance -> its fit.json ``per_log`` key and the factor to the unit of Problem.pack."""
 _REPRODUCE_RTOL = 1e-3          # recomputed per-log RMS against fit.json
 _POSTERIOR_RMS_EXCESS = 0.10    # median curve worse than least squares by more: say so
 _DPI = 100
@@ -177,10 +180,10 @@ def _problem(logs: Sequence[Log], result: Mapping[str, Any],
         for name, p in result["parameters"].items() if p.get("fixed")}
     fix |= dict.fromkeys(n for item in options.get("fix", [])
                          if (n := item.partition("=")[0]) in NUISANCES)
-    sample_range = options.get("sample_range")
-    return Problem(logs, spec, fix=fix, denoise=options.get("denoise", "auto"),
-                   sample_range=tuple(sample_range) if sample_range is not None else None,
-                   weights=options.get("weights") or None, skip=options.get("skip", 0))
+    recorded = {k: options[k] for k in PROBLEM_OPTIONS if k in options}
+    if recorded.get("sample_range") is not None:        # a JSON list
+        recorded["sample_range"] = tuple(recorded["sample_range"])
+    return Problem(logs, spec, fix=fix, **recorded)
 
 
 # -- the model's curves ---------------------------------------------------------------------
@@ -213,8 +216,8 @@ def _fit_curves(run: RunDirectory) -> _Curves:
     values = {name: p["value"] * problem.par_scale(name)
               for name, p in result["parameters"].items() if not p.get("fixed")}
     model = problem.par.with_values(problem.model, values, where=str(run.result_file))
-    nuisances = {name: [entry[key] for entry in result["per_log"]]
-                 for name, key in (("offset", "offset_N"), ("friction_state0", "friction_state0"))
+    nuisances = {name: [entry[key] * factor for entry in result["per_log"]]
+                 for name, (key, factor) in _PER_LOG_NUISANCES.items()
                  if name in problem.nuisance_names}
     per_log = problem.per_log(problem.pack(model, nuisances))
     labels = _term_labels(model)
@@ -488,6 +491,14 @@ def _fmt(value: float | None, digits: int = 5) -> str:
     return f"{value:.{digits}g}"
 
 
+def _fmt_to(value: float | None, spread: float | None) -> str:
+    """``value`` with the decimals that give ``spread`` (its uncertainty) two significant
+    digits: 1.4000 for n = 1.40004 +/- 0.0026, not 1.4."""
+    if value is None or spread is None or not (math.isfinite(spread) and spread > 0):
+        return _fmt(value)
+    return f"{value:.{max(0, 1 - math.floor(math.log10(spread)))}f}"
+
+
 def _p(text: str) -> str:
     return f"<p>{html.escape(text)}</p>"
 
@@ -554,46 +565,48 @@ def _posterior_verdict(result: Mapping[str, Any], curves_rms: float) -> _Verdict
     return _Verdict(status, headline, tuple(details + cautions))
 
 
-def _fit_tables(run: RunDirectory, truth: Mapping[str, float]) -> str:
-    result = run.result
-    rows = []
-    for name, p in result["parameters"].items():
-        if p.get("fixed"):
-            rows.append([name, _fmt(p["value"]), "fixed", "", p["unit"], _fmt(truth.get(name))])
-            continue
-        rows.append([name, _fmt(p["value"]), _fmt(p["stderr"], 2),
-                     _interval_from_stderr(p["value"], p["stderr"]), p["unit"],
-                     _fmt(truth.get(name))])
+def _entries(result: Mapping[str, Any]) -> list[tuple[str, str, Mapping[str, Any]]]:
+    """``(name, label, entry)`` of the parameters, then the derived quantities (their entries
+    given a ``unit``)."""
+    out = [(name, name, p) for name, p in result["parameters"].items()]
     for name, d in result["derived"].items():
         label, unit = split_unit(name)
-        rows.append([label, _fmt(d["value"]), _fmt(d["stderr"], 2),
-                     _interval_from_stderr(d["value"], d["stderr"]), unit,
+        out.append((name, label, {"unit": unit} | d))
+    return out
+
+
+def _fit_tables(run: RunDirectory, truth: Mapping[str, float]) -> str:
+    rows = []
+    for name, label, e in _entries(run.result):
+        value, stderr = e["value"], e.get("stderr")
+        if e.get("fixed"):
+            spread, interval = "fixed", ""
+        elif stderr is None:
+            spread, interval = "n/a", "n/a (not determined)"
+        else:
+            spread = _fmt_to(stderr, stderr)
+            interval = (f"{_fmt_to(value - _Z90 * stderr, stderr)} to "
+                        f"{_fmt_to(value + _Z90 * stderr, stderr)}")
+        rows.append([label, _fmt_to(value, stderr), spread, interval, e["unit"],
                      _fmt(truth.get(name))])
     return _table(["quantity", "estimate", "standard error", "90 % interval", "unit", "truth"],
                   rows)
 
 
-def _interval_from_stderr(value: float, stderr: float | None) -> str:
-    if stderr is None:
-        return "n/a (not determined)"
-    return f"{_fmt(value - _Z90 * stderr)} to {_fmt(value + _Z90 * stderr)}"
-
-
 def _posterior_tables(run: RunDirectory, truth: Mapping[str, float]) -> str:
-    result = run.result
-    fit = result.get("fit") or {}
+    fit = run.result.get("fit") or {}
     least_squares = {**fit.get("parameters", {}), **fit.get("derived", {})}
     rows = []
-    for name, s in list(result["parameters"].items()) + list(result["derived"].items()):
-        label = name if name in result["parameters"] else split_unit(name)[0]
-        if s.get("fixed"):
-            rows.append([label, _fmt(s["value"]), "fixed", "", s["unit"], "",
+    for name, label, e in _entries(run.result):
+        if e.get("fixed"):
+            rows.append([label, _fmt(e["value"]), "fixed", "", e["unit"], "",
                          _fmt(truth.get(name))])
             continue
-        ls = least_squares.get(name)
-        rows.append([label, _fmt(s["q50"]), _fmt(s["std"], 2),
-                     f"{_fmt(s['q05'])} to {_fmt(s['q95'])}", s["unit"],
-                     "" if ls is None else f"{_fmt(ls['value'])} ± {_fmt(ls['stderr'], 2)}",
+        std, ls = e["std"], least_squares.get(name)
+        rows.append([label, _fmt_to(e["q50"], std), _fmt_to(std, std),
+                     f"{_fmt_to(e['q05'], std)} to {_fmt_to(e['q95'], std)}", e["unit"],
+                     "" if ls is None else
+                     f"{_fmt_to(ls['value'], ls['stderr'])} ± {_fmt_to(ls['stderr'], ls['stderr'])}",
                      _fmt(truth.get(name))])
     return _table(["quantity", "median", "std", "90 % interval (5-95 %)", "unit",
                    "least squares ± stderr", "truth"], rows)
