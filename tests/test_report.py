@@ -102,6 +102,16 @@ def test_fit_report(fit_report):
     assert fit_report.parent.joinpath("fit.json").is_file()
 
 
+def test_report_rebuilds_the_problem_options_of_the_fit(tmp_path):
+    """A sample range and a fitted closing pressure (a per-log nuisance) change the fitted
+    curves: the report reproduces fit.json's RMS only if it rebuilds both."""
+    log = fig4_logs()[-1]
+    assert main(["fit", str(log), "--free", "closing_pressure", "--range", "100:700",
+                 "--out", str(tmp_path)]) == 0
+    figures = {f"loop_{log.stem}", f"residuals_{log.stem}", "chamber_vs_seal"}
+    check_page(write_report(tmp_path), figures)
+
+
 @pytest.fixture
 def moved_fit(demo, tmp_path) -> tuple[Path, Path]:
     """A copy of the demo's fit directory whose inputs are copies of the bundled logs."""
