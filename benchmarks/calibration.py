@@ -7,7 +7,8 @@ two logs of the paper's cylinder (2 bar at 1 mm/s, 6 bar at 5 mm/s; triangle cyc
 0.2, 0.5 and 1 mm). ``chamber+dahl`` is fitted once, then sampled with each noise model; the
 score is the fraction of datasets whose 90 % interval (q05, q95) of the pre-sliding slope and
 of the breakaway force contains the true value, with its binomial standard error. A calibrated
-posterior covers 90 %.
+posterior covers 90 %. For comparison the least-squares interval ``value +- 1.645 stderr``
+(Laplace covariance with AR(1) inflation and turning-point errors) is scored too.
 
     python benchmarks/calibration.py --datasets 50 --json calibration.json
     python benchmarks/calibration.py --datasets 3 --steps 600 --noise-models ar1
@@ -32,6 +33,7 @@ LOGS = ((2.0, 1.0), (6.0, 5.0))          # (supply bar, rate mm/s)
 AMPLITUDES_MM = (0.05, 0.2, 0.5, 1.0)
 UM_PER_SAMPLE = 5.0
 QUANTITIES = ("presliding_slope_N_per_mm", "breakaway_N")
+_Z90 = 1.6448536269514722
 
 
 def draw_truth(rng: np.random.Generator) -> dict[str, float]:
@@ -69,6 +71,11 @@ def score(seed: int, *, noise_models=("ar1", "gaussian"), walkers: int = 16, ste
     row: dict[str, object] = {"seed": seed, "truth": truth, "fit_converged": result.converged,
                               "fit_seconds": time.perf_counter() - t0,
                               "residual_lag1": result.residual_autocorrelation}
+    row["least_squares"] = {}
+    for key in QUANTITIES:
+        value, err = result.derived[key]
+        row["least_squares"][key] = _entry(value - _Z90 * err, value, value + _Z90 * err,
+                                           truth[key])
     for name in noise_models:
         t0 = time.perf_counter()
         post = sample_posterior(result, noise_model=name, walkers=walkers, steps=steps,
@@ -79,10 +86,13 @@ def score(seed: int, *, noise_models=("ar1", "gaussian"), walkers: int = 16, ste
                                     "seconds": time.perf_counter() - t0}
         for key in QUANTITIES:
             s = post.summary(key)
-            entry[key] = {"q05": s["q05"], "q50": s["q50"], "q95": s["q95"],
-                          "covered": bool(s["q05"] <= truth[key] <= s["q95"])}
+            entry[key] = _entry(s["q05"], s["q50"], s["q95"], truth[key])
         row[name] = entry
     return row
+
+
+def _entry(q05: float, q50: float, q95: float, truth: float) -> dict[str, object]:
+    return {"q05": q05, "q50": q50, "q95": q95, "covered": bool(q05 <= truth <= q95)}
 
 
 def coverage(rows, noise_model: str, key: str) -> tuple[float, float]:
@@ -118,13 +128,14 @@ def main() -> None:
         if args.json:
             with open(args.json, "w") as fh:
                 json.dump(rows, fh, indent=2)
-    for m in models:
+    for m in (*models, "least_squares"):
         for key in QUANTITIES:
             p, se = coverage(rows, m, key)
-            print(f"{m:10s} {key:28s} 90 % interval coverage {100 * p:5.1f} % "
+            print(f"{m:13s} {key:28s} 90 % interval coverage {100 * p:5.1f} % "
                   f"+- {100 * se:.1f} ({len(rows)} datasets)")
+    for m in models:
         conv = np.mean([r[m]["converged"] for r in rows])
-        print(f"{m:10s} converged in {100 * conv:.0f} % of the runs")
+        print(f"{m:13s} converged in {100 * conv:.0f} % of the runs")
 
 
 if __name__ == "__main__":

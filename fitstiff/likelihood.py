@@ -29,9 +29,24 @@ series has its own noise level and, for :class:`AR1`, its own correlation.
 ``ar1`` is the default of :func:`fitstiff.posterior.sample_posterior`; see that module for the
 evidence.
 
-A noise model is a small frozen dataclass. :meth:`prepared` fills in what it estimates from the
-least-squares residuals (returning a new instance); :meth:`log_likelihood` is a pure JAX
-function of the residual vector (``jit`` / ``vmap`` friendly).
+**Turning points** (``gaussian`` and ``ar1``). A displacement error at a reversal shifts the
+whole branch after it (the denoiser keeps every sample between reversals on a monotone
+estimate, but the extremum itself carries the sensor noise); least squares adds this
+errors-in-variables term to its covariance (:mod:`fitstiff.fitting`), and so does the
+likelihood: :class:`TurningPoints` holds, per reversal sample ``k`` of each log, the column
+``u_k = (d r / d x_k) sigma_x`` (the log's displacement noise) of the whitened force
+residuals at the least-squares optimum, and the errors ``delta ~ N(0, I)`` along them are
+integrated out: the covariance of a series is ``s**2 (C + W W')`` with ``C`` the noise
+model's correlation and ``W = C^(-1/2) U / s_hat`` (``s_hat`` the noise scale at the optimum),
+so with ``e = C^(-1/2) r``, ``v = W' e`` and ``M = (I + W'W)^-1`` the sum of squares above
+becomes ``e'e - v'M v`` (Woodbury). The pressure channels' sensitivity to a micrometre at a
+reversal (a few Pa against hundreds) is left out. ``student_t`` has no such closed form and
+leaves the turning points out.
+
+A noise model is a small frozen dataclass. :meth:`~NoiseModel.prepared` fills in what it
+estimates from the least-squares residuals (returning a new instance);
+:meth:`~NoiseModel.log_likelihood` is a pure JAX function of the residual vector (``jit`` /
+``vmap`` friendly).
 """
 
 from __future__ import annotations
@@ -55,6 +70,7 @@ __all__ = [
     "Layout",
     "NoiseModel",
     "StudentT",
+    "TurningPoints",
     "noise_from_dict",
     "noise_model",
 ]
@@ -121,13 +137,64 @@ class Layout:
         return jnp.asarray(values)[jnp.asarray(self.segment)]
 
 
+@dataclasses.dataclass(frozen=True, eq=False)
+class TurningPoints:
+    """Errors of the displacement at the reversal samples, as columns of the whitened residual
+    vector (see the module docstring).
+
+    Attributes:
+        columns: ``(R, m)``: ``d r / d x_k`` times the log's displacement noise for each
+            reversal sample ``k`` with an effect, zero outside the force series.
+        series: ``(m,)`` the force series each column belongs to.
+    """
+
+    columns: np.ndarray
+    series: np.ndarray
+
+    @classmethod
+    def at(cls, problem: Problem, theta, layout: Layout) -> TurningPoints:
+        """The columns at ``theta`` (one forward-mode Jacobian through the scan)."""
+        scales = [np.asarray(s) for s in problem.reversal_noise()]
+        where = [np.nonzero(s) for s in scales]
+        sizes = [len(rows) for rows, _ in where]
+        if not sum(sizes):
+            return cls(np.zeros((layout.size, 0)), np.zeros(0, dtype=int))
+        base = problem.displacements()
+
+        def residuals(delta):
+            moved, start = [], 0
+            for x, s, (rows, cols), k in zip(base, scales, where, sizes):
+                bump = jnp.zeros(x.shape).at[rows, cols].set(delta[start:start + k]
+                                                             * s[rows, cols])
+                moved.append(x + bump)
+                start += k
+            return problem.residuals(theta, tuple(moved))
+
+        columns = np.array(jax.jit(jax.jacfwd(residuals))(jnp.zeros(sum(sizes))))
+        force = np.array([e.channel == "force" for e in layout.series])[layout.segment]
+        columns[~force] = 0.0
+        columns = columns[:, np.any(columns != 0.0, axis=0)]
+        return cls(columns, layout.segment[np.argmax(np.abs(columns), axis=0)])
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class _Marginal:
+    """Precomputed Woodbury terms of the turning points for one prepared noise model."""
+
+    whitened: np.ndarray   # (R, m) W
+    inverse: np.ndarray    # (m, m) (I + W'W)^-1
+    series: np.ndarray     # (m,)
+
+
 class NoiseModel:
     """Interface of the noise models (see the module docstring)."""
 
     name: ClassVar[str]
 
-    def prepared(self, residuals: np.ndarray, layout: Layout) -> NoiseModel:
-        """This model with the settings it estimates from the least-squares residuals."""
+    def prepared(self, residuals: np.ndarray, layout: Layout, *,
+                 turning_points: TurningPoints | None = None) -> NoiseModel:
+        """This model with the settings it estimates from the least-squares residuals (and,
+        where the model can, the turning-point errors integrated out)."""
         return self
 
     def log_likelihood(self, residuals, layout: Layout):
@@ -140,15 +207,15 @@ class NoiseModel:
         raise NotImplementedError
 
     def to_dict(self) -> dict[str, object]:
+        """The settings as JSON types (:func:`noise_from_dict` reads them back)."""
         return {"name": self.name, **{f.name: _plain(getattr(self, f.name))
-                                      for f in dataclasses.fields(self)}}
+                                      for f in dataclasses.fields(self) if f.name != "marginal"}}
 
     def _check_prepared(self, field: str, layout: Layout) -> np.ndarray:
         values = getattr(self, field)
         if values is None:
             raise ValueError(f"{self.name}: call prepared() before evaluating the likelihood")
-        values = np.broadcast_to(np.asarray(values, dtype=float), (len(layout.series),))
-        return values
+        return np.broadcast_to(np.asarray(values, dtype=float), (len(layout.series),))
 
 
 def _plain(value):
@@ -157,39 +224,81 @@ def _plain(value):
     return value
 
 
-def _rms(residuals, layout: Layout):
-    return jnp.sqrt(layout.per_series(residuals**2) / jnp.asarray(layout.counts))
+class _Quadratic(NoiseModel):
+    """Gaussian errors with a per-series correlation ``C`` and scale: :meth:`whiten` applies
+    ``C^(-1/2)``; the scale is known (``sigma``) or integrated out (Jeffreys prior)."""
+
+    sigma: float | None = None
+    marginal: _Marginal | None = None
+
+    def whiten(self, residuals, layout: Layout):
+        raise NotImplementedError
+
+    def _estimated(self, residuals: np.ndarray, layout: Layout) -> _Quadratic:
+        return self
+
+    def prepared(self, residuals, layout, *, turning_points=None):
+        model = self._estimated(np.asarray(residuals), layout)
+        if turning_points is None or not turning_points.columns.shape[1]:
+            return model
+        if model.sigma is None:
+            e = model.whiten(jnp.asarray(residuals), layout)
+            scale = np.sqrt(np.asarray(layout.per_series(e**2)) / layout.counts)
+        else:
+            scale = np.full(len(layout.series), model.sigma)
+        whiten = jax.vmap(lambda c: model.whiten(c, layout), in_axes=1, out_axes=1)
+        w = np.asarray(whiten(jnp.asarray(turning_points.columns))) / scale[layout.segment, None]
+        inverse = np.linalg.inv(np.eye(w.shape[1]) + w.T @ w)
+        return dataclasses.replace(model, marginal=_Marginal(w, inverse, turning_points.series))
+
+    def _squares(self, residuals, layout: Layout):
+        e = self.whiten(residuals, layout)
+        q = layout.per_series(e**2)
+        if self.marginal is None:
+            return q
+        m = self.marginal
+        v = jnp.asarray(m.whitened).T @ e
+        return q - jax.ops.segment_sum(v * (jnp.asarray(m.inverse) @ v), jnp.asarray(m.series),
+                                       num_segments=len(layout.series))
+
+    def log_likelihood(self, residuals, layout: Layout):
+        q = self._squares(residuals, layout)
+        if self.sigma is None:
+            return -0.5 * jnp.sum(jnp.asarray(layout.counts) * jnp.log(q))
+        return -0.5 * jnp.sum(q) / self.sigma**2
+
+    def _check_sigma(self) -> None:
+        if self.sigma is not None and not (math.isfinite(self.sigma) and self.sigma > 0):
+            raise InputError(None, f"noise model '{self.name}'", f"sigma = {self.sigma!r}",
+                             "give a standard deviation > 0, or None for an unknown one")
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
-class Gaussian(NoiseModel):
+class Gaussian(_Quadratic):
     """Independent Gaussian errors; ``sigma=None``: unknown scale per series, integrated out
     (Jeffreys prior); a number: the known standard deviation of the whitened residuals."""
 
     name: ClassVar[str] = "gaussian"
     sigma: float | None = None
+    marginal: _Marginal | None = dataclasses.field(default=None, repr=False)
 
     def __post_init__(self):
-        if self.sigma is not None and not (math.isfinite(self.sigma) and self.sigma > 0):
-            raise InputError(None, "noise model 'gaussian'", f"sigma = {self.sigma!r}",
-                             "give a standard deviation > 0, or None for an unknown one")
+        self._check_sigma()
 
-    def log_likelihood(self, residuals, layout: Layout):
-        squares = layout.per_series(residuals**2)
-        if self.sigma is None:
-            return -0.5 * jnp.sum(jnp.asarray(layout.counts) * jnp.log(squares))
-        return -0.5 * jnp.sum(squares) / self.sigma**2
+    def whiten(self, residuals, layout: Layout):
+        return jnp.where(layout.mask, residuals, 0.0)
 
     def series_scale(self, residuals, layout: Layout):
         if self.sigma is None:
-            return _rms(residuals, layout)
+            return jnp.sqrt(layout.per_series(residuals**2) / jnp.asarray(layout.counts))
         return jnp.full(len(layout.series), self.sigma)
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
 class StudentT(NoiseModel):
     """Independent Student-t errors with ``nu`` degrees of freedom; ``scale`` per series
-    (estimated from the median absolute residual when ``None``)."""
+    (estimated from the median absolute residual when ``None``). Turning-point errors are not
+    included (no closed-form marginal)."""
 
     name: ClassVar[str] = "student_t"
     nu: float = 4.0
@@ -200,13 +309,13 @@ class StudentT(NoiseModel):
             raise InputError(None, "noise model 'student_t'", f"nu = {self.nu!r}",
                              "give degrees of freedom > 0 (4 is robust to outliers)")
 
-    def prepared(self, residuals: np.ndarray, layout: Layout) -> StudentT:
+    def prepared(self, residuals, layout, *, turning_points=None):
         if self.scale is not None:
             return self
         # the median |r| of a t_nu variable of scale s is s * t_nu.ppf(0.75)
         q = float(stats.t.ppf(0.75, self.nu))
-        scale = tuple(float(np.median(np.abs(residuals[e.span][e.mask])) / q)
-                      for e in layout.series)
+        r = np.asarray(residuals)
+        scale = tuple(float(np.median(np.abs(r[e.span][e.mask])) / q) for e in layout.series)
         return dataclasses.replace(self, scale=scale)
 
     def log_likelihood(self, residuals, layout: Layout):
@@ -221,40 +330,36 @@ class StudentT(NoiseModel):
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
-class AR1(NoiseModel):
+class AR1(_Quadratic):
     """Stationary AR(1) errors per series: ``phi`` per series (estimated from the lag-1
     regression of the least-squares residuals when ``None``), innovation scale integrated
     out (Jeffreys prior)."""
 
     name: ClassVar[str] = "ar1"
     phi: tuple[float, ...] | None = None
+    marginal: _Marginal | None = dataclasses.field(default=None, repr=False)
 
-    def prepared(self, residuals: np.ndarray, layout: Layout) -> AR1:
+    def _estimated(self, residuals, layout):
         if self.phi is not None:
             return self
-        r = np.asarray(residuals)
-        prev = np.concatenate([[0.0], r[:-1]])
+        prev = np.concatenate([[0.0], residuals[:-1]])
         phi = []
         for e in layout.series:
             f = layout.follows[e.span]
-            a, b = r[e.span][f], prev[e.span][f]
+            a, b = residuals[e.span][f], prev[e.span][f]
             value = float(a @ b / (b @ b)) if b @ b > 0 else 0.0
             phi.append(float(np.clip(value, -_PHI_LIMIT, _PHI_LIMIT)))
         return dataclasses.replace(self, phi=tuple(phi))
 
-    def _quadratic(self, residuals, layout: Layout):
-        phi = self._check_prepared("phi", layout)
-        p = layout.broadcast(phi)
+    def whiten(self, residuals, layout: Layout):
+        p = layout.broadcast(self._check_prepared("phi", layout))
         innovation = jnp.where(layout.follows, residuals - p * layout.previous(residuals),
                                jnp.sqrt(1.0 - p**2) * residuals)
-        return layout.per_series(innovation**2), jnp.asarray(phi)
-
-    def log_likelihood(self, residuals, layout: Layout):
-        q, _ = self._quadratic(residuals, layout)
-        return -0.5 * jnp.sum(jnp.asarray(layout.counts) * jnp.log(q))
+        return jnp.where(layout.mask, innovation, 0.0)
 
     def series_scale(self, residuals, layout: Layout):
-        q, phi = self._quadratic(residuals, layout)
+        phi = jnp.asarray(self._check_prepared("phi", layout))
+        q = layout.per_series(self.whiten(residuals, layout) ** 2)
         return jnp.sqrt(q / jnp.asarray(layout.counts) / (1.0 - phi**2))
 
 

@@ -74,21 +74,23 @@ import numpy as np
 
 from fitstiff import likelihood
 from fitstiff._jax import jax, jnp
-from fitstiff.derived import DERIVED, derived_quantities
+from fitstiff.derived import DERIVED, derived_quantities, split_unit
 from fitstiff.errors import InputError
 from fitstiff.fitting import FitResult, fit_problem
-from fitstiff.likelihood import Layout, NoiseModel, noise_from_dict
+from fitstiff.likelihood import Layout, NoiseModel, TurningPoints, noise_from_dict
 from fitstiff.log import Log
 from fitstiff.model import Model
 from fitstiff.params import Parameterization
 from fitstiff.priors import Prior, Priors
-from fitstiff.problem import Problem
+from fitstiff.problem import PROBLEM_OPTIONS, Problem
 
 __all__ = [
     "CALIBRATION_NOTE",
     "DEFAULT_NOISE_MODEL",
     "Diagnostics",
+    "LogPosterior",
     "Posterior",
+    "log_posterior",
     "sample_posterior",
 ]
 
@@ -104,7 +106,6 @@ _STUCK_FRACTION = 0.2
 _DERIVED_BATCH = 256
 _PREDICTIVE_BATCH = 25
 _PREDICTIVE_POINTS = 2000   # at most this many samples per log in the predictive file
-_PROBLEM_OPTIONS = ("denoise", "sample_range", "weights", "skip")
 _QUANTILES = (("q05", 5.0), ("q50", 50.0), ("q95", 95.0))
 
 
@@ -193,7 +194,7 @@ class Posterior:
         """``{q05, q50, q95, mean, std, unit}`` of a sampled name or derived quantity, in
         display units."""
         if name in self.derived:
-            return _summary(self.flat(name), unit=_derived_unit(name))
+            return _summary(self.flat(name), unit=split_unit(name)[1])
         i = self.names.index(name)
         return _summary(self.flat(name) / self.priors.scales[i], unit=self.priors.units[name])
 
@@ -263,11 +264,11 @@ class Posterior:
         logs = [log.name for log in self.problem.logs]
         for nuisance in self.problem.nuisance_names:
             idx = [self.names.index(f"{nuisance}[{n}]") for n in logs]
-            posterior[nuisance] = by_walker[..., idx]
+            posterior[nuisance] = by_walker[..., idx] / self.priors.scales[idx]
             units[nuisance] = self.priors.units[self.names[idx[0]]]
         for name, values in self.derived.items():
             posterior[name] = np.swapaxes(np.asarray(values), 0, 1)
-            units[name] = _derived_unit(name)
+            units[name] = split_unit(name)[1]
         d = self.diagnostics
         idata = az.from_dict(
             posterior=posterior, sample_stats={"lp": np.swapaxes(self.log_prob, 0, 1)},
@@ -286,13 +287,6 @@ def _summary(values: np.ndarray, *, unit: str) -> dict[str, object]:
     out: dict[str, object] = {k: float(np.percentile(values, q)) for k, q in _QUANTILES}
     out |= {"mean": float(np.mean(values)), "std": float(np.std(values, ddof=1)), "unit": unit}
     return out
-
-
-def _derived_unit(name: str) -> str:
-    for suffix, unit in (("_N_per_mm", "N/mm"), ("_mm", "mm"), ("_N", "N")):
-        if name.endswith(suffix):
-            return unit
-    return ""
 
 
 def _fixed_values(problem: Problem) -> dict[str, float]:
@@ -318,8 +312,8 @@ def sample_posterior(logs_or_fit: Sequence[Log] | FitResult, model: Model | str 
             or a :class:`~fitstiff.fitting.FitResult` to start from (its problem is sampled).
         model: spec string or built model (with logs).
         fix: parameters to hold, as in :func:`~fitstiff.fitting.fit`.
-        fit_options: keyword arguments of :func:`~fitstiff.fitting.fit` (problem options
-            ``denoise``, ``sample_range``, ``weights``, ``skip`` and solver options).
+        fit_options: keyword arguments of :func:`~fitstiff.fitting.fit` (the problem's
+            :data:`~fitstiff.problem.PROBLEM_OPTIONS` and solver options).
         noise_model: ``"ar1"`` (default), ``"gaussian"``, ``"student_t"`` or an instance
             from :mod:`fitstiff.likelihood`.
         priors: overrides of the default priors (:mod:`fitstiff.priors`): a mapping or the
@@ -358,7 +352,7 @@ def sample_posterior(logs_or_fit: Sequence[Log] | FitResult, model: Model | str 
     warnings: list[str] = []
 
     if resume:
-        noise = store.resume(signature)
+        noise, theta_start = store.resume(signature)
         fit_result = None
     else:
         if fit_result is None:
@@ -366,13 +360,17 @@ def sample_posterior(logs_or_fit: Sequence[Log] | FitResult, model: Model | str 
         if not fit_result.converged:
             warnings.append(f"the least-squares start did not converge "
                             f"({fit_result.message}); the burn-in may be long")
-        noise = noise.prepared(_residuals(problem, fit_result.theta), layout)
-    log_prob = _VectorisedLogPosterior(problem, noise, layout, prior_set, walkers)
+        theta_start = np.asarray(fit_result.theta)
+    noise, turning = _prepared(problem, noise, theta_start, layout)
+    if turning.columns.shape[1] and getattr(noise, "marginal", None) is None:
+        warnings.append(f"the {noise.name} noise model leaves the displacement errors at the "
+                        "turning points out: intervals may be too narrow")
+    log_prob = LogPosterior(problem, noise, prior_set, batch=(walkers + 1) // 2)
     emcee_backend = store.backend if store else emcee.backends.Backend()
     if not resume:
         emcee_backend.reset(walkers, problem.size)
         if store:
-            store.write_settings(signature, noise)
+            store.write_settings(signature, settings=noise, theta_start=theta_start)
     sampler = emcee.EnsembleSampler(walkers, problem.size, log_prob, vectorize=True,
                                     backend=emcee_backend)
     if resume:
@@ -380,10 +378,8 @@ def sample_posterior(logs_or_fit: Sequence[Log] | FitResult, model: Model | str 
     else:
         coords, lp0 = _start(fit_result, problem, log_prob, walkers,
                              np.random.default_rng(seeds[0]), prior_set)
-        rng_state = np.random.RandomState(np.random.MT19937(seeds[1])).get_state()
-        sampler.random_state = rng_state
-        state = emcee.State(coords, log_prob=lp0, random_state=rng_state)
-
+        state = emcee.State(coords, log_prob=lp0, random_state=np.random.RandomState(
+            np.random.MT19937(seeds[1])).get_state())
     try:
         check = _run_chunks(sampler, state, names=problem.names, steps=steps,
                             tau_multiple=tau_multiple, check_every=check_every,
@@ -410,31 +406,63 @@ def _check_options(**options) -> None:
 
 def _problem(logs_or_fit, model, fix, fit_options) -> tuple[Problem, FitResult | None]:
     if isinstance(logs_or_fit, FitResult):
-        if model is not None and (model if isinstance(model, str) else model.spec) \
-                != logs_or_fit.model.spec:
-            raise InputError(None, f"model '{model}'",
-                             f"differs from the fit's model '{logs_or_fit.model.spec}'",
-                             "pass the fit alone or the logs with the model")
+        if model is not None or fix or fit_options:
+            raise InputError(None, "model, fix, fit_options",
+                             "are given with a fit, which has them already",
+                             "pass the fit alone, or the logs with these options")
         return logs_or_fit.problem, logs_or_fit
     if model is None:
         raise InputError(None, "model", "none given", "give a spec such as 'chamber+dahl'")
-    options = {k: v for k, v in fit_options.items() if k in _PROBLEM_OPTIONS}
+    options = {k: v for k, v in fit_options.items() if k in PROBLEM_OPTIONS}
     return Problem(list(logs_or_fit), model, fix=fix, **options), None
 
 
 def _solver_options(fit_options: Mapping[str, object]) -> dict[str, object]:
-    return {k: v for k, v in fit_options.items() if k not in _PROBLEM_OPTIONS}
+    return {k: v for k, v in fit_options.items() if k not in PROBLEM_OPTIONS}
 
 
-class _VectorisedLogPosterior:
-    """emcee's ``log_prob_fn`` (``vectorize=True``): rows of ``theta`` -> log-posteriors.
+def log_posterior(fit: FitResult, *, noise_model: str | NoiseModel = DEFAULT_NOISE_MODEL,
+                  priors: Mapping[str, Prior | Mapping[str, object]] | str | os.PathLike
+                  | None = None, batch: int = 16) -> LogPosterior:
+    """The log-posterior of a fit's problem, for other samplers and benchmarks.
 
-    One compiled function of a fixed batch (half the ensemble, the stretch move's update),
-    shared by every sampler of the problem with the same noise model and priors."""
+    Args:
+        fit: the least-squares fit; its residuals give the noise settings (and its optimum
+            the turning-point columns).
+        noise_model, priors: as in :func:`sample_posterior`.
+        batch: rows per compiled call of the returned :class:`LogPosterior`.
+    """
+    problem = fit.problem
+    layout = problem.cached("layout", lambda: Layout.from_problem(problem))
+    noise, _ = _prepared(problem, likelihood.noise_model(noise_model), fit.theta, layout)
+    return LogPosterior(problem, noise, Priors(problem, priors), batch=batch)
 
-    def __init__(self, problem: Problem, noise: NoiseModel, layout: Layout, priors: Priors,
-                 walkers: int):
-        self.batch = (walkers + 1) // 2
+
+def _prepared(problem: Problem, noise: NoiseModel, theta: np.ndarray,
+              layout: Layout) -> tuple[NoiseModel, TurningPoints]:
+    """``noise`` with its settings and the turning-point errors at ``theta``."""
+    turning = TurningPoints.at(problem, jnp.asarray(theta), layout)
+    return noise.prepared(_residuals(problem, theta), layout, turning_points=turning), turning
+
+
+class LogPosterior:
+    """Rows of ``theta`` -> log-posteriors (emcee's ``log_prob_fn`` with ``vectorize=True``).
+
+    ``one(theta)`` is the JAX function of one ``theta``; calls run it ``vmap``-ed and compiled
+    for ``batch`` rows (half the ensemble: the stretch move's update), padding the last chunk,
+    so it compiles once. Compilations are shared by every instance for the same problem,
+    noise model, priors and batch.
+
+    Args:
+        problem: the problem sampled.
+        noise: a prepared noise model (:meth:`~fitstiff.likelihood.NoiseModel.prepared`).
+        priors: the priors.
+        batch: rows per compiled call.
+    """
+
+    def __init__(self, problem: Problem, noise: NoiseModel, priors: Priors, *, batch: int):
+        layout = problem.cached("layout", lambda: Layout.from_problem(problem))
+        self.problem, self.noise, self.priors, self.batch = problem, noise, priors, batch
 
         def one(theta):
             lp = (noise.log_likelihood(problem.residuals(theta), layout)
@@ -442,11 +470,11 @@ class _VectorisedLogPosterior:
             return jnp.where(jnp.isnan(lp), -jnp.inf, lp)
 
         self.one = one
-        self.fn = problem.cached(("log_posterior", noise, priors.key),
-                                 lambda: jax.jit(jax.vmap(one)))
+        self._fn = problem.cached(("log_posterior", noise, priors.key, batch),
+                                  lambda: jax.jit(jax.vmap(one)))
 
     def __call__(self, coords: np.ndarray) -> np.ndarray:
-        return _batched(self.fn, np.asarray(coords, dtype=float), batch=self.batch)
+        return _batched(self._fn, np.asarray(coords, dtype=float), batch=self.batch)
 
 
 def _batched(fn: Callable, rows: np.ndarray, *, batch: int) -> np.ndarray:
@@ -458,7 +486,7 @@ def _batched(fn: Callable, rows: np.ndarray, *, batch: int) -> np.ndarray:
     return np.concatenate(out)[:n]
 
 
-def _start(fit: FitResult, problem: Problem, log_prob: _VectorisedLogPosterior, walkers: int,
+def _start(fit: FitResult, problem: Problem, log_prob: LogPosterior, walkers: int,
            rng: np.random.Generator, priors: Priors) -> tuple[np.ndarray, np.ndarray]:
     """Walkers in a ball around the least-squares optimum (0.1 x its Laplace covariance)."""
     theta = np.asarray(fit.theta, dtype=float)
@@ -572,6 +600,10 @@ def _collect(problem: Problem, sampler: emcee.EnsembleSampler, check: _Check, *,
     n, walkers = check.steps, sampler.nwalkers
     tau_max = float(np.nanmax(check.tau)) if np.isfinite(check.tau).any() else float(n)
     discard = min(math.ceil(_BURN_IN_TAUS * tau_max), n // 2)
+    kept = n - discard
+    if thin is not None and thin > kept:
+        raise InputError(None, f"--thin {thin}", f"keeps no step of the {kept} after the burn-in",
+                         f"give --thin {kept} or less")
     thin = thin or max(1, int(tau_max // 2))
     thetas = sampler.get_chain(discard=discard, thin=thin)
     log_prob = sampler.get_log_prob(discard=discard, thin=thin)
@@ -582,7 +614,6 @@ def _collect(problem: Problem, sampler: emcee.EnsembleSampler, check: _Check, *,
         lambda th: jnp.stack([_derived(problem, th)[k] for k in DERIVED]))))
     derived_values = _batched(derived_fn, flat, batch=_DERIVED_BATCH)
     derived = {k: derived_values[:, i].reshape(thetas.shape[:2]) for i, k in enumerate(DERIVED)}
-    kept = n - discard
     tau = dict(zip(problem.names, map(float, check.tau)))
     diagnostics = Diagnostics(
         acceptance_fraction=np.asarray(sampler.acceptance_fraction), autocorr_time=tau,
@@ -674,11 +705,15 @@ class _ChainStore:
         self.path = Path(path)
         self.backend = _BufferedHDFBackend(str(self.path), name="mcmc")
 
-    def write_settings(self, signature: Mapping[str, object], noise: NoiseModel) -> None:
+    def write_settings(self, signature: Mapping[str, object], *, settings: NoiseModel,
+                       theta_start: np.ndarray) -> None:
+        """Store what a resumed run needs: the signature, the estimated noise settings and
+        the least-squares optimum they (and the turning-point columns) were taken at."""
         with h5py.File(self.path, "a") as f:
             group = f.require_group(self._GROUP)
             group.attrs["signature"] = json.dumps(signature, sort_keys=True)
-            group.attrs["noise"] = json.dumps(noise.to_dict())
+            group.attrs["noise"] = json.dumps(settings.to_dict())
+            group.attrs["theta_start"] = np.asarray(theta_start, dtype=float)
 
     def compact(self) -> None:
         """Rewrite the file without the space the random-state attribute updates leave
@@ -690,8 +725,9 @@ class _ChainStore:
                 src.copy(src[name], dst, name=name)
         os.replace(tmp, self.path)
 
-    def resume(self, signature: Mapping[str, object]) -> NoiseModel:
-        """Check the stored chain against ``signature``; the stored noise model."""
+    def resume(self, signature: Mapping[str, object]) -> tuple[NoiseModel, np.ndarray]:
+        """Check the stored chain against ``signature``; the stored noise settings and
+        least-squares optimum."""
         where = str(self.path)
         try:
             with h5py.File(self.path, "r") as f:
@@ -711,7 +747,7 @@ class _ChainStore:
                                  f"({_short(stored.get(key))} vs {_short(mine[key])} now)",
                                  "resume with the original logs and options, or drop --resume "
                                  "to start over")
-        return noise_from_dict(json.loads(attrs["noise"]))
+        return noise_from_dict(json.loads(attrs["noise"])), np.asarray(attrs["theta_start"])
 
 
 def _short(value: object) -> str:

@@ -12,7 +12,8 @@ ordered      ``log_normal`` of each increment over the previous element (the fir
              lower bound), median at the starting increment, ``sd_log = ln 10``
 ============ ============================================================================
 
-The initial friction state of a log is uniform in ``(-1, 1)``. The log-posterior adds the
+Per-log nuisances: the force offset (N) and, when fitted, the closing pressure (bar gauge)
+are flat; the initial friction state is uniform in ``(-1, 1)``. The log-posterior adds the
 log-Jacobian of the transforms, so these are densities of the physical values.
 
 Overrides come from a JSON file (``--priors FILE``) or a mapping, keyed by parameter name
@@ -64,7 +65,9 @@ DISTRIBUTIONS: dict[str, tuple[str, ...]] = {
 }
 _CODES = {name: i for i, name in enumerate(DISTRIBUTIONS)}
 _SD_LOG = math.log(10.0)
-_NUISANCE_UNITS = {"offset": "N", "friction_state0": "-"}
+#: per-log nuisances: display unit, SI per display unit, default prior
+_NUISANCES = {"offset": ("N", 1.0, ()), "friction_state0": ("-", 1.0, (-1.0, 1.0)),
+              "closing_pressure": ("bar", 1e5, ())}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -265,10 +268,10 @@ def _defaults(problem: Problem):
     for nuisance in problem.nuisance_names:
         for log in problem.logs:
             name = f"{nuisance}[{log.name}]"
-            units[name] = _NUISANCE_UNITS[nuisance]
-            scales.append(1.0)
-            defaults[name] = (Prior("flat", unit="N") if nuisance == "offset"
-                              else Prior("uniform", (-1.0, 1.0), "-"))
+            unit, scale, bounds = _NUISANCES[nuisance]
+            units[name] = unit
+            scales.append(scale)
+            defaults[name] = Prior("uniform" if bounds else "flat", bounds, unit)
     return units, np.array(scales), defaults, previous
 
 

@@ -17,7 +17,7 @@ from conftest import REPO, polyline
 
 from benchmarks import calibration
 from fitstiff.cli import main
-from fitstiff.likelihood import AR1, Gaussian, Layout, StudentT
+from fitstiff.likelihood import AR1, Gaussian, Layout, StudentT, TurningPoints
 from fitstiff.log import Log
 from fitstiff.posterior import sample_posterior
 from fitstiff.priors import Priors
@@ -51,6 +51,27 @@ def test_ar1_likelihood_is_the_exact_gaussian_one():
     for k in range(1, e.size):
         e[k] = 0.6 * e[k - 1] + rng.standard_normal()
     assert AR1().prepared(e, _layout(np.ones(e.size, bool))).phi[0] == pytest.approx(0.6, abs=0.02)
+
+
+def test_turning_point_errors_are_integrated_out_exactly():
+    """With columns U of displacement errors at the turning points, the sum of squares is
+    r' (C + U U' / s^2)^-1 r (Woodbury), s the noise scale at the optimum; a known sigma gives
+    the Gaussian with covariance sigma^2 I + U U'."""
+    rng = np.random.default_rng(2)
+    n, phi = 50, 0.5
+    layout = _layout(np.ones(n, bool))
+    u = 0.3 * rng.standard_normal((n, 2))
+    turning = TurningPoints(u, np.zeros(2, dtype=int))
+    r_hat, r = rng.standard_normal(n), rng.standard_normal(n)
+    model = AR1(phi=(phi,)).prepared(r_hat, layout, turning_points=turning)
+    innovations = np.concatenate([[np.sqrt(1 - phi**2) * r_hat[0]], r_hat[1:] - phi * r_hat[:-1]])
+    s2 = innovations @ innovations / n
+    corr = phi ** np.abs(np.subtract.outer(np.arange(n), np.arange(n))) / (1 - phi**2)
+    q = r @ np.linalg.solve(corr + u @ u.T / s2, r)
+    assert float(model.log_likelihood(r, layout)) == pytest.approx(-0.5 * n * np.log(q), rel=1e-12)
+    known = Gaussian(sigma=2.0).prepared(r_hat, layout, turning_points=turning)
+    q = r @ np.linalg.solve(4.0 * np.eye(n) + u @ u.T, r)
+    assert float(known.log_likelihood(r, layout)) == pytest.approx(-0.5 * q, rel=1e-12)
 
 
 def test_student_t_scale_is_estimated_robustly():
@@ -210,7 +231,7 @@ def test_killed_run_resumes_to_the_uninterrupted_chain(tmp_path):
     force = 15.0 * np.gradient(log.displacement, log.time) + 0.2 * rng.standard_normal(len(log))
     csv = write_log(Log("lin", log.displacement, force, log.time), tmp_path / "lin.csv")[0]
     argv = ["posterior", str(csv), "--model", "viscous", "--denoise", "off", "--walkers", "8",
-            "--steps", "6000", "--tau-multiple", "1000", "--check-every", "1000",
+            "--steps", "4000", "--tau-multiple", "1000", "--check-every", "1000",
             "--noise-model", "gaussian", "--seed", "9", "--draws", "5"]
     killed = tmp_path / "killed"
     env = dict(os.environ, FITSTIFF_CACHE_DIR="", HDF5_USE_FILE_LOCKING="FALSE",
@@ -232,7 +253,7 @@ def test_killed_run_resumes_to_the_uninterrupted_chain(tmp_path):
     assert proc.returncode == 130, err.decode()
     assert b"continue it with --resume" in err
     stopped_at = len(_chain(partial)[0])
-    assert 0 < stopped_at < 6000
+    assert 0 < stopped_at < 4000
 
     assert main(argv + ["--out", str(killed), "--resume"]) == 0
     straight = tmp_path / "straight"
@@ -255,11 +276,11 @@ def test_killed_run_resumes_to_the_uninterrupted_chain(tmp_path):
 def test_calibration_benchmark_runs_small():
     """The calibration machinery on three datasets (the coverage itself needs >= 50: see
     benchmarks/calibration.py)."""
-    rows = [calibration.score(seed, noise_models=("ar1",), walkers=16, steps=200,
+    rows = [calibration.score(seed, noise_models=("ar1",), walkers=16, steps=100,
                               tau_multiple=50) for seed in range(3)]
     for row in rows:
         entry = row["ar1"]
-        assert not entry["converged"] and entry["steps"] == 200
+        assert not entry["converged"] and entry["steps"] == 100
         for key in calibration.QUANTITIES:
             q = entry[key]
             assert q["q05"] < q["q50"] < q["q95"]
