@@ -136,9 +136,27 @@ def open_run(directory: str | Path) -> RunDirectory:
                          "give every run its own --out directory")
     inputs = tuple(_verified(entry, manifest=path / MANIFEST) for entry in manifest["inputs"])
     options = manifest.get("options", {})
-    logs = load_logs(result["files"], **options.get("reading", {}))
+    logs = _reread(result["files"], options, manifest=path / MANIFEST)
     return RunDirectory(path=path, kind=kind, result=result, manifest=manifest,
                         problem=_problem(logs, result, options), inputs=inputs)
+
+
+def _reread(files: Sequence[str], options: Mapping[str, Any], *, manifest: Path) -> list[Log]:
+    """The run's logs, read as the run read them (``options["reading"]``: keyword arguments of
+    :func:`~fitstiff.loading.load_logs`), or as canonical CSV files where the manifest does
+    not record how."""
+    reading = options.get("reading")
+    try:
+        return load_logs(files, **(reading or {}))
+    except InputError as exc:
+        if reading is not None:
+            raise
+        raise InputError(str(manifest), "re-reading the run's logs",
+                         f"failed ({exc}): the manifest does not record how they were read "
+                         "(--format, --columns, --no-header, --delimiter, rig overrides), so "
+                         "they were read as canonical CSV files",
+                         "report runs on canonical CSV logs, or runs whose manifest records "
+                         "options['reading']") from None
 
 
 def _read_json(path: Path, *, missing: str = "run the command that writes it") -> dict:

@@ -143,6 +143,24 @@ def test_changed_or_missing_input_is_one_line_exit_2(moved_fit, capsys):
     assert not (run / REPORT).exists()
 
 
+def test_logs_read_in_a_way_the_manifest_does_not_record_are_named(moved_fit):
+    """A run that read headerless files (--no-header --columns ...) records no reading options
+    yet: the report says so instead of the loader's advice to pass --no-header."""
+    run, log = moved_fit
+    log.write_text("".join(log.read_text().splitlines(keepends=True)[1:]))    # no header
+    manifest = json.loads((run / "manifest.json").read_text())
+    for entry in manifest["inputs"]:
+        if entry["path"] == str(log):
+            entry["sha256"] = hashlib.sha256(log.read_bytes()).hexdigest()
+    (run / "manifest.json").write_text(json.dumps(manifest))
+    with pytest.raises(InputError, match=(
+            re.escape(f"{run / 'manifest.json'}: re-reading the run's logs: failed ({log}: line "
+                      "1: looks like data, not a header") + r".*\): the manifest does not record "
+            r"how they were read \(--format, --columns, --no-header, --delimiter, rig "
+            r"overrides\), so they were read as canonical CSV files; report runs on canonical")):
+        write_report(run)
+
+
 def test_a_fit_the_logs_do_not_reproduce_is_refused(moved_fit):
     run, _ = moved_fit
     fit = json.loads((run / "fit.json").read_text())
