@@ -36,9 +36,6 @@ def demo(tmp_path_factory) -> Path:
     return out
 
 
-@pytest.fixture(scope="module")
-def fit_report(demo) -> Path:
-    return write_report(demo / "fit")
 
 
 def check_page(report: Path, figures: set[str]) -> None:
@@ -74,7 +71,7 @@ def test_bundled_logs_are_the_generated_ones():
             hashlib.sha256(original.read_bytes()).digest(), path.name
 
 
-def test_demo_ends_in_a_posterior_report(demo, capsys):
+def test_demo_ends_in_a_posterior_report(demo):
     report = demo / "posterior" / REPORT
     figures = (loop_figures("loop") | loop_figures("residuals")
                | {"chamber_vs_seal", "corner", "trace_n", "trace_sigma0", "trace_Fc"})
@@ -93,23 +90,20 @@ def test_demo_ends_in_a_posterior_report(demo, capsys):
         "outputs"]                                  # the run's own manifest is untouched
 
 
-def test_fit_report(fit_report):
-    figures = loop_figures("loop") | loop_figures("residuals") | {"chamber_vs_seal"}
-    check_page(fit_report, figures)
-    page = fit_report.read_text(encoding="utf-8")
-    assert "The fit converged (lm, " in page
-    assert re.search(r"<td class=\"name\">Fc</td><td class=\"num\">18\.0\d*</td>", page)
-    assert fit_report.parent.joinpath("fit.json").is_file()
-
-
-def test_report_rebuilds_the_problem_options_of_the_fit(tmp_path):
-    """A sample range and a fitted closing pressure (a per-log nuisance) change the fitted
-    curves: the report reproduces fit.json's RMS only if it rebuilds both."""
+def test_fit_report(tmp_path):
+    """The report of a one-log fit with a sample range and a fitted closing pressure (a per-log
+    nuisance): both change the fitted curves, and the report reproduces fit.json's per-log RMS
+    (or refuses) only if it rebuilds them."""
     log = fig4_logs()[-1]
     assert main(["fit", str(log), "--free", "closing_pressure", "--range", "100:700",
                  "--out", str(tmp_path)]) == 0
-    figures = {f"loop_{log.stem}", f"residuals_{log.stem}", "chamber_vs_seal"}
-    check_page(write_report(tmp_path), figures)
+    report = write_report(tmp_path)
+    check_page(report, {f"loop_{log.stem}", f"residuals_{log.stem}", "chamber_vs_seal"})
+    page = report.read_text(encoding="utf-8")
+    assert "Fit report: chamber+dahl" in page
+    assert "The fit converged (lm, " in page
+    assert re.search(r"<td class=\"name\">Fc</td><td class=\"num\">18\.\d*</td>", page)
+    assert json.loads((tmp_path / REPORT_MANIFEST).read_text())["options"]["kind"] == "fit"
 
 
 @pytest.fixture
