@@ -131,6 +131,7 @@ class OutputDir:
         return {
             "fitstiff_version": __version__,
             "command": self.command,
+            "cwd": os.getcwd(),
             "created_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"),
             "python": sys.version.split()[0],
             "seed": self.seed,

@@ -134,9 +134,12 @@ def open_run(directory: str | Path) -> RunDirectory:
                          f"do not include {name} (the manifest is of another run: "
                          f"{manifest.get('command', '?')})",
                          "give every run its own --out directory")
-    inputs = tuple(_verified(entry, manifest=path / MANIFEST) for entry in manifest["inputs"])
+    started = Path(manifest.get("cwd", "."))   # relative paths are relative to it
+    inputs = tuple(_verified({**entry, "path": str(started / entry["path"])},
+                             manifest=path / MANIFEST) for entry in manifest["inputs"])
     options = manifest.get("options", {})
-    logs = _reread(result["files"], options, manifest=path / MANIFEST)
+    logs = _reread([str(started / f) for f in result["files"]], options,
+                   manifest=path / MANIFEST)
     return RunDirectory(path=path, kind=kind, result=result, manifest=manifest,
                         problem=_problem(logs, result, options), inputs=inputs)
 
@@ -172,12 +175,9 @@ def _read_json(path: Path, *, missing: str = "run the command that writes it") -
 def _verified(entry: Mapping[str, str], *, manifest: Path) -> tuple[Path, str]:
     """An input of the run, checked against the SHA-256 its manifest recorded."""
     path = Path(entry["path"])
-    relative = "" if path.is_absolute() else (
-        " (the path is relative to the directory the run was started in: run the report "
-        "from there)")
     if not path.is_file():
         raise InputError(str(path), f"input of the run in {manifest}",
-                         "is missing" + relative, "restore the file or run again")
+                         "is missing", "restore the file or run again")
     digest = sha256_file(path)
     if digest != entry["sha256"]:
         raise InputError(str(path), f"input of the run in {manifest}",

@@ -21,7 +21,8 @@ from fitstiff.columns import CHAMBERS, ENTRY_FORM, bundled_formats
 from fitstiff.loading import load_logs
 from fitstiff.log import RIG_KEYS, Log
 
-__all__ = ["add_log_arguments", "add_out_argument", "logs_from_args"]
+__all__ = ["add_log_arguments", "add_out_argument", "input_files", "logs_from_args",
+           "reading_options"]
 
 
 def add_log_arguments(parser: argparse.ArgumentParser) -> None:
@@ -58,9 +59,30 @@ def add_out_argument(parser: argparse.ArgumentParser, *, default: str | None = N
 
 def logs_from_args(args: argparse.Namespace) -> list[Log]:
     """Load the logs named by the options of :func:`add_log_arguments`."""
+    return load_logs(args.logs, **reading_options(args))
+
+
+def reading_options(args: argparse.Namespace) -> dict[str, object]:
+    """Keyword arguments of :func:`~fitstiff.loading.load_logs` given by the options (for a
+    manifest, so a report can read the logs again the same way)."""
     overrides: dict[str, object] = {k.key: getattr(args, k.key) for k in RIG_KEYS
                                     if getattr(args, k.key) is not None}
     if args.vented:
         overrides["vented"] = sorted(set(args.vented))
-    return load_logs(args.logs, columns=args.columns, no_header=args.no_header,
-                     delimiter=args.delimiter, rig_overrides=overrides, fmt=args.format)
+    return {"columns": args.columns, "no_header": args.no_header, "delimiter": args.delimiter,
+            "rig_overrides": overrides, "fmt": args.format}
+
+
+def input_files(logs: list[Log], args: argparse.Namespace) -> list[Path]:
+    """Every file a run read: the logs, their sidecar JSONs and a format file (not a bundled
+    format name), for the manifest's hashes."""
+    files: list[Path] = []
+    for log in logs:
+        if log.path:
+            files.append(Path(log.path))
+            sidecar = Path(log.path).with_suffix(".json")
+            if sidecar.is_file():
+                files.append(sidecar)
+    if args.format and Path(args.format).is_file():
+        files.append(Path(args.format))
+    return files

@@ -5,7 +5,8 @@ from __future__ import annotations
 import argparse
 import json
 
-from fitstiff.cli._common import add_log_arguments, add_out_argument, logs_from_args
+from fitstiff.cli._common import (add_log_arguments, add_out_argument, input_files,
+                                  logs_from_args, reading_options)
 from fitstiff.comparison import compare
 from fitstiff.errors import InputError
 from fitstiff.fitting import SOLVERS, fit
@@ -127,9 +128,10 @@ def fit_options(args) -> dict[str, object]:
 def run(args) -> int:
     logs = logs_from_args(args)
     options = fit_options(args)
-    out = OutputDir(args.out, inputs=[log.path for log in logs if log.path],
+    out = OutputDir(args.out, inputs=input_files(logs, args),
                     seed=args.seed,
-                    options={"model": args.model, "fix": args.fix, **options})
+                    options={"model": args.model, "fix": args.fix, **options,
+                             "reading": reading_options(args)})
     if args.compare:
         specs = [s for s in args.compare.split(",") if s]
         comparison, _ = compare(logs, specs, **options)

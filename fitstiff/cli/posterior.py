@@ -16,7 +16,8 @@ import sys
 
 import numpy as np
 
-from fitstiff.cli._common import add_log_arguments, add_out_argument, logs_from_args
+from fitstiff.cli._common import (add_log_arguments, add_out_argument, input_files,
+                                  logs_from_args, reading_options)
 from fitstiff.cli.fit import add_fit_arguments, fit_options, parse_fix
 from fitstiff.errors import InputError
 from fitstiff.likelihood import NOISE_MODELS
@@ -76,9 +77,10 @@ def _raise_interrupt(signum, frame):
 def run(args) -> int:
     logs = logs_from_args(args)
     options = fit_options(args)
-    inputs = [log.path for log in logs if log.path] + ([args.priors] if args.priors else [])
+    inputs = input_files(logs, args) + ([args.priors] if args.priors else [])
     out = OutputDir(args.out, inputs=inputs, seed=args.seed,
                     options={"model": args.model, "fix": args.fix, **options,
+                             "reading": reading_options(args),
                              "noise_model": args.noise_model, "walkers": args.walkers,
                              "steps": args.steps, "tau_multiple": args.tau_multiple,
                              "priors": args.priors, "resume": args.resume})
