@@ -119,7 +119,9 @@ def test_cli_writes_fit_json_and_leaves_inputs_alone(tmp_path, capsys):
         assert set(data["derived"][key]) == {"value", "stderr"}
     assert data["parameters"]["sigma0"]["unit"] == "N/mm"
     manifest = json.loads((out / "manifest.json").read_text())
-    assert [i["sha256"] for i in manifest["inputs"]] == list(before.values())
+    hashes = {i["path"]: i["sha256"] for i in manifest["inputs"]}
+    assert [hashes[str(p)] for p in paths] == list(before.values())
+    assert str(paths[0].with_suffix(".json")) in hashes          # sidecars are inputs too
     assert before == {p: hashlib.sha256(p.read_bytes()).hexdigest() for p in paths}
 
 
