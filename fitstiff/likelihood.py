@@ -124,17 +124,27 @@ class Layout:
         return self.segment.shape[0]
 
     def per_series(self, values):
-        """Sum of ``values`` (``(R,)``) over the data of each series -> ``(S,)``."""
-        return jax.ops.segment_sum(jnp.where(self.mask, values, 0.0), jnp.asarray(self.segment),
-                                   num_segments=len(self.series))
+        """Sum of ``values`` (``(R,)``) over the data of each series -> ``(S,)`` (a product
+        with the 0/1 membership matrix: much faster than a scatter-add on CPU)."""
+        return values @ self.members()
+
+    def members(self) -> np.ndarray:
+        """``(R, S)``: 1 where a residual is data of a series, else 0."""
+        return _membership(self.segment, self.mask, len(self.series))
 
     def previous(self, r):
         """``r`` shifted by one sample (the residual before each entry; 0 for the first)."""
         return jnp.concatenate([jnp.zeros(1), r[:-1]])
 
-    def broadcast(self, values) -> jnp.ndarray:
-        """A per-series array ``(S,)`` spread to every residual ``(R,)``."""
-        return jnp.asarray(values)[jnp.asarray(self.segment)]
+    def broadcast(self, values: np.ndarray) -> np.ndarray:
+        """Per-series settings ``(S,)`` spread to every residual ``(R,)``."""
+        return np.asarray(values)[self.segment]
+
+
+def _membership(index: np.ndarray, mask: np.ndarray, size: int) -> np.ndarray:
+    out = np.zeros((index.size, size))
+    out[np.arange(index.size), index] = mask
+    return out
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -258,8 +268,8 @@ class _Quadratic(NoiseModel):
             return q
         m = self.marginal
         v = jnp.asarray(m.whitened).T @ e
-        return q - jax.ops.segment_sum(v * (jnp.asarray(m.inverse) @ v), jnp.asarray(m.series),
-                                       num_segments=len(layout.series))
+        members = _membership(m.series, np.ones(m.series.size, bool), len(layout.series))
+        return q - (v * (jnp.asarray(m.inverse) @ v)) @ members
 
     def log_likelihood(self, residuals, layout: Layout):
         q = self._squares(residuals, layout)

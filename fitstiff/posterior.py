@@ -2,7 +2,7 @@
 
 >>> from fitstiff.loading import load_logs
 >>> from fitstiff.posterior import sample_posterior
->>> logs = load_logs(["data/synthetic/fig4/osp32_mid_6bar.csv"])         # doctest: +SKIP
+>>> logs = load_logs(["data/synthetic/fig4/p6bar_x350mm.csv"])           # doctest: +SKIP
 >>> post = sample_posterior(logs, "chamber+dahl", seed=1)                 # doctest: +SKIP
 >>> post.diagnostics.converged, post.summary("breakaway_N")["q50"]        # doctest: +SKIP
 (True, 18.01)
@@ -44,10 +44,13 @@ than a fifth of the median walker. Otherwise it stops at ``steps`` with ``conver
 the reason; it is never dropped. ``discard`` = 5 times the largest time (at most half the
 chain), ``thin`` = half of it unless given; effective samples = walkers x kept steps / tau.
 
-**Resume.** With ``backend`` (a path), every step is written to an
-:class:`emcee.backends.HDFBackend` together with the noise settings and a signature of the
-problem; ``resume=True`` continues from the last stored step with the stored random state, so
-an interrupted and resumed run gives the same chain as an uninterrupted one.
+**Resume.** With ``backend`` (a path) the chain goes to an :class:`emcee.backends.HDFBackend`
+file (steps written in batches at most a second apart, and at once when the run is
+interrupted), together with a signature of the problem (model, names, data hash, noise model,
+priors, walkers), the estimated noise settings and the least-squares optimum.
+``resume=True`` checks the signature and continues from the last stored step with the stored
+random state, so an interrupted and resumed run gives the same chain as an uninterrupted one
+(convergence checks fall on the same absolute step numbers).
 
 **Outputs.** :class:`Posterior`: thinned samples in SI, quantiles (``q05``, ``q50``, ``q95``,
 ``mean``, ``std``) of the parameters and of the derived quantities of DESIGN §1.2 (computed by a
