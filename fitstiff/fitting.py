@@ -471,12 +471,6 @@ def _summary_functions(problem: Problem):
     """One compiled function: residuals, Jacobian, physical values and their Jacobian,
     derived quantities (first log) and their gradient, all at ``theta``."""
 
-    def physical(th):
-        _, nuis = problem.unpack(th)
-        parts = [problem.par.physical(th[:problem.par.size])]
-        parts += [nuis[n] for n in problem.nuisance_names]
-        return jnp.concatenate(parts)
-
     def derived_vec(th):
         model, _ = problem.unpack(th)
         d = derived_quantities(model, problem.drives[0])
@@ -491,8 +485,9 @@ def _summary_functions(problem: Problem):
         scales = problem.reversal_noise()
         eiv = jax.vmap(lambda col: jnp.concatenate(
             [(c * s).ravel() for c, s in zip(vjp(col)[0], scales)]), in_axes=1, out_axes=1)(jac)
-        return (problem.residuals(theta), jac, eiv, physical(theta),
-                jax.jacfwd(physical)(theta), derived_vec(theta), jax.jacfwd(derived_vec)(theta))
+        return (problem.residuals(theta), jac, eiv, problem.physical(theta),
+                jax.jacfwd(problem.physical)(theta), derived_vec(theta),
+                jax.jacfwd(derived_vec)(theta))
 
     return evaluate
 
