@@ -68,6 +68,7 @@ import math
 import os
 import sys
 import time
+import warnings
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 
@@ -89,7 +90,10 @@ from fitstiff.problem import PROBLEM_OPTIONS, Problem
 
 __all__ = [
     "CALIBRATION_NOTE",
+    "CHAIN",
     "DEFAULT_NOISE_MODEL",
+    "INFERENCE_DATA",
+    "PREDICTIVE",
     "Diagnostics",
     "LogPosterior",
     "Posterior",
@@ -98,6 +102,10 @@ __all__ = [
 ]
 
 DEFAULT_NOISE_MODEL = "ar1"
+#: the files a posterior run writes next to ``posterior.json`` (``fitstiff posterior``)
+CHAIN = "chain.h5"                  # the emcee chain (HDF5 backend), resumable
+INFERENCE_DATA = "posterior.nc"     # ArviZ InferenceData (netCDF)
+PREDICTIVE = "predictive.npz"       # model-force draws for the report
 #: measured coverage of the default (filled in from benchmarks/calibration.py)
 CALIBRATION_NOTE = "see benchmarks/calibration.py"
 _BALL = 0.1                 # start ball: this times the Laplace standard deviations
@@ -231,9 +239,8 @@ class Posterior:
             "files": [str(log.path) if log.path else log.name for log in problem.logs],
         }
         if self.fit is not None:
-            out["fit"] = {"converged": self.fit.converged, "rms_N": self.fit.rms_N,
-                          "derived": {k: {"value": v, "stderr": e}
-                                      for k, (v, e) in self.fit.derived.items()}}
+            fit_dict = self.fit.to_dict()
+            out["fit"] = {k: fit_dict[k] for k in ("converged", "rms_N", "parameters", "derived")}
         return out
 
     def table(self) -> str:
@@ -273,13 +280,17 @@ class Posterior:
             posterior[name] = np.swapaxes(np.asarray(values), 0, 1)
             units[name] = split_unit(name)[1]
         d = self.diagnostics
-        idata = az.from_dict(
-            posterior=posterior, sample_stats={"lp": np.swapaxes(self.log_prob, 0, 1)},
-            coords={"log": logs}, dims={n: ["log"] for n in self.problem.nuisance_names},
-            attrs={"model": self.problem.model.spec, "noise_model": d.noise_model,
-                   "converged": int(d.converged), "reason": d.reason, "steps": d.steps,
-                   "discard": d.discard, "thin": d.thin,
-                   "inference_library": f"emcee {emcee.__version__}"})
+        with warnings.catch_warnings():
+            # the axes are (walker, draw) on purpose: emcee runs many walkers on short thinned
+            # chains, so ArviZ's "more chains than draws" shape guess does not apply
+            warnings.filterwarnings("ignore", message="More chains", category=UserWarning)
+            idata = az.from_dict(
+                posterior=posterior, sample_stats={"lp": np.swapaxes(self.log_prob, 0, 1)},
+                coords={"log": logs}, dims={n: ["log"] for n in self.problem.nuisance_names},
+                attrs={"model": self.problem.model.spec, "noise_model": d.noise_model,
+                       "converged": int(d.converged), "reason": d.reason, "steps": d.steps,
+                       "discard": d.discard, "thin": d.thin,
+                       "inference_library": f"emcee {emcee.__version__}"})
         for name, unit in units.items():
             idata.posterior[name].attrs["unit"] = unit
         return idata

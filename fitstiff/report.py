@@ -59,6 +59,7 @@ from fitstiff.log import Log
 from fitstiff.model import Model, build_model
 from fitstiff.output import OutputDir, sha256_file
 from fitstiff.params import find_param
+from fitstiff.posterior import CHAIN, INFERENCE_DATA
 from fitstiff.problem import NUISANCES, PROBLEM_OPTIONS, Problem
 from fitstiff.stiffness import MM
 
@@ -69,8 +70,6 @@ REPORT = "report.html"
 FIGURES = "figures"
 MANIFEST = "manifest.json"
 REPORT_MANIFEST = "report.manifest.json"
-CHAIN = "chain.h5"
-INFERENCE_DATA = "posterior.nc"
 RESULT_FILES: Mapping[str, str] = {"posterior": "posterior.json", "fit": "fit.json"}
 """Report kind -> the result file that makes a directory one of that kind (checked in order)."""
 
@@ -623,11 +622,20 @@ def _posterior_tables(run: RunDirectory, truth: Mapping[str, float]) -> str:
         std, ls = e["std"], least_squares.get(name)
         rows.append([label, _fmt_to(e["q50"], std), _fmt_to(std, std),
                      f"{_fmt_to(e['q05'], std)} to {_fmt_to(e['q95'], std)}", e["unit"],
-                     "" if ls is None else
-                     f"{_fmt_to(ls['value'], ls['stderr'])} ± {_fmt_to(ls['stderr'], ls['stderr'])}",
+                     _value_pm(ls),
                      _fmt(truth.get(name))])
     return _table(["quantity", "median", "std", "90 % interval (5-95 %)", "unit",
                    "least squares ± stderr", "truth"], rows)
+
+
+def _value_pm(entry: Mapping[str, object] | None) -> str:
+    """``value ± stderr`` of a least-squares entry; the value alone where it has no stderr."""
+    if entry is None or entry.get("value") is None:
+        return ""
+    value, stderr = entry["value"], entry.get("stderr")
+    if stderr is None:
+        return _fmt(value)
+    return f"{_fmt_to(value, stderr)} ± {_fmt_to(stderr, stderr)}"
 
 
 def _log_table(problem: Problem, curves: _Curves, offsets: Sequence[float | None]) -> str:

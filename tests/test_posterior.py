@@ -9,6 +9,7 @@ import signal
 import subprocess
 import sys
 import time
+import warnings
 
 import h5py
 import numpy as np
@@ -164,8 +165,10 @@ def test_cli_posterior_contains_truth_and_writes_every_file(tmp_path, capsys):
 
     out = tmp_path / "post"
     before = FIG4.read_bytes()
-    code = main(["posterior", str(FIG4), "--model", "chamber+dahl", "--walkers", "12",
-                 "--steps", "1500", "--tau-multiple", "20", "--seed", "4", "--out", str(out)])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", UserWarning)     # e.g. ArviZ's "more chains than draws"
+        code = main(["posterior", str(FIG4), "--model", "chamber+dahl", "--walkers", "12",
+                     "--steps", "1500", "--tau-multiple", "20", "--seed", "4", "--out", str(out)])
     assert code == 0
     assert FIG4.read_bytes() == before
     truth = json.loads(FIG4.with_suffix("").with_suffix(".truth.json").read_text())["derived"]
@@ -176,6 +179,11 @@ def test_cli_posterior_contains_truth_and_writes_every_file(tmp_path, capsys):
         assert set(s) == {"q05", "q50", "q95", "mean", "std", "unit"}
         assert s["q05"] <= truth[key] <= s["q95"], (key, s, truth[key])
     assert post["parameters"]["sigma0"]["unit"] == "N/mm"
+    fit = post["fit"]                     # the least-squares start, in fit.json's units
+    assert set(fit) == {"converged", "rms_N", "parameters", "derived"}
+    assert fit["parameters"]["sigma0"]["unit"] == "N/mm"
+    assert fit["parameters"]["sigma0"]["value"] == pytest.approx(
+        post["parameters"]["sigma0"]["q50"], rel=0.05)
     diag = post["diagnostics"]
     assert {"acceptance_fraction", "autocorr_time", "effective_samples", "converged", "reason",
             "steps", "walkers", "noise_model"} <= set(diag)

@@ -84,6 +84,9 @@ def test_demo_ends_in_a_posterior_report(demo):
     assert "Effective samples: fewest" in page
     # the truth of the synthetic logs is in the table (sigma0 = 40 N/mm)
     assert re.search(r"<td class=\"name\">sigma0</td>.*?<td class=\"num\">40</td></tr>", page)
+    # ... next to the least-squares value the walkers started from
+    assert re.search(r"<td class=\"name\">sigma0</td>(<td[^>]*>[^<]*</td>){4}"
+                     r"<td class=\"num\">[0-9.]+ ± [0-9.]+</td>", page)
     manifest = json.loads((demo / "posterior" / REPORT_MANIFEST).read_text())
     assert manifest["options"]["kind"] == "posterior"
     assert "posterior.json" in json.loads((demo / "posterior" / "manifest.json").read_text())[

@@ -16,19 +16,26 @@ import sys
 
 import numpy as np
 
-from fitstiff.cli._common import (add_log_arguments, add_out_argument, input_files,
-                                  logs_from_args, reading_options)
+from fitstiff.cli._common import (
+    add_log_arguments,
+    add_out_argument,
+    input_files,
+    logs_from_args,
+    reading_options,
+)
 from fitstiff.cli.fit import add_fit_arguments, fit_options, parse_fix
 from fitstiff.errors import InputError
 from fitstiff.likelihood import NOISE_MODELS
 from fitstiff.output import OutputDir, to_jsonable
-from fitstiff.posterior import DEFAULT_NOISE_MODEL, sample_posterior
+from fitstiff.posterior import (
+    CHAIN,
+    DEFAULT_NOISE_MODEL,
+    INFERENCE_DATA,
+    PREDICTIVE,
+    sample_posterior,
+)
 
 __all__ = ["add_parser", "run"]
-
-CHAIN = "chain.h5"
-INFERENCE_DATA = "posterior.nc"
-PREDICTIVE = "predictive.npz"
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
