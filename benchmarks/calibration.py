@@ -93,6 +93,7 @@ def score(seed: int, *, noise_models=("ar1", "gaussian"), walkers: int = 16, ste
                                 tau_multiple=tau_multiple, seed=seed, progress=False, draws=1,
                                 priors=DRAW_PRIORS if priors == "draw" else None)
         entry: dict[str, object] = {"converged": post.diagnostics.converged,
+                                    "reason": post.diagnostics.reason,
                                     "steps": post.diagnostics.steps,
                                     "max_tau": max(post.diagnostics.autocorr_time.values()),
                                     "seconds": time.perf_counter() - t0}
