@@ -66,8 +66,9 @@ def reference_residuals(p, x, force, p_a, p_b, rig, sigma_f, sigma_p):
         prev = x[k]
         d = math.copysign(1.0, dx) if dx != 0 else 0.0
         f = d * fc + (f - d * fc) * math.exp(-sigma0 * abs(dx) / fc)
-        pa = p0 * (l_a0 / (l_a0 + x[k])) ** n
-        pb = p0 * (l_b0 / (l_b0 - x[k])) ** n
+        u = x[k] - x[0]                # the chambers close at the first sample
+        pa = p0 * (l_a0 / (l_a0 + u)) ** n
+        pb = p0 * (l_b0 / (l_b0 - u)) ** n
         out_f[k] = f + area * (pb - amb) - area * (pa - amb) + offset
         out_pa[k] = pa
         out_pb[k] = pb

@@ -295,3 +295,23 @@ def test_calibration_benchmark_runs_small():
             assert abs(q["q50"] / row["truth"][key] - 1) < 0.02
     p, se = calibration.coverage(rows, "ar1", "breakaway_N")
     assert 0 <= p <= 1 and se >= 0
+
+
+# -- the speed benchmark's reference ----------------------------------------------------------
+def test_speed_benchmark_reference_is_the_same_log_posterior():
+    """benchmarks/posterior_speed.py compares against a NumPy log-posterior; it must be the
+    same function (up to one constant), or the speed-up means nothing."""
+    from benchmarks.fit_speed import make_log
+    from benchmarks.posterior_speed import reference_log_posterior
+    from fitstiff.fitting import fit_problem
+    from fitstiff.posterior import log_posterior
+
+    problem = Problem([make_log()], "chamber+dahl")
+    fit = fit_problem(problem)
+    lp = log_posterior(fit, batch=4)
+    assert lp.noise.marginal is not None          # turning points are part of both
+    coords = fit.theta + 0.05 * np.random.default_rng(1).standard_normal((4, problem.size))
+    jax_values = np.asarray(lp(coords))
+    assert np.ptp(jax_values) > 1.0               # the points are far enough apart to tell
+    ref = np.array([reference_log_posterior(c, problem, lp.noise) for c in coords])
+    assert np.ptp(ref - jax_values) < 1e-3

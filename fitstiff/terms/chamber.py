@@ -54,10 +54,14 @@ class Chamber(Term):
         closed_a, closed_b = (m == "closed" for m in drive.modes)
         if closed_a or closed_b:
             # exact polytropic step on the effective lengths (volumes / area)
-            r_a = (drive.l_a0 + x_prev) / (drive.l_a0 + s.x)
-            r_b = (drive.l_b0 - x_prev) / (drive.l_b0 - s.x)
-            p_a, th_a = p_a * r_a**self.n, th_a * r_a ** (self.n - 1)
-            p_b, th_b = p_b * r_b**self.n, th_b * r_b ** (self.n - 1)
+            # r**n as exp(n log r): the logs depend on the drive only, so under vmap over
+            # parameter sets (the posterior's walkers) they are computed once per step
+            log_a = jnp.log((drive.l_a0 + x_prev) / (drive.l_a0 + s.x))
+            log_b = jnp.log((drive.l_b0 - x_prev) / (drive.l_b0 - s.x))
+            p_a, p_b = p_a * jnp.exp(self.n * log_a), p_b * jnp.exp(self.n * log_b)
+            if mod.heat_rate is not None:      # gas temperature / wall temperature
+                th_a = th_a * jnp.exp((self.n - 1) * log_a)
+                th_b = th_b * jnp.exp((self.n - 1) * log_b)
             if mod.heat_rate is not None:
                 decay = jnp.exp(-mod.heat_rate * s.dt)
                 new_a = 1 + (th_a - 1) * decay
