@@ -103,6 +103,7 @@ def main() -> None:
                          f"by {agree:.3g} over the walkers (must be a constant)")
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
+        # one convergence check, at the end: the chain is exactly --steps long
         post = sample_posterior(fit, walkers=WALKERS, steps=args.steps, check_every=args.steps,
                                 seed=1, progress=False, backend=Path(tmp) / "chain.h5")
         run_s = time.perf_counter() - t0

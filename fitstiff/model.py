@@ -1,4 +1,5 @@
-"""Composition: a model is a sum of terms, run as one compiled ``lax.scan`` over the samples.
+"""Composition: a model is a sum of terms, run as one compiled ``lax.scan`` over the samples
+(terms with a closed form over all samples at once).
 
 >>> from fitstiff.model import build_model
 >>> model = build_model("dahl+viscous")
@@ -131,11 +132,27 @@ class Model(eqx.Module):
                     p_b=drive.pressure_b, still=drive.still)
 
     def run(self, drive: Drive) -> Prediction:
-        """Run the scan: total force, per-term forces and the chamber pressures."""
+        """Run the scan: total force, per-term forces and the chamber pressures.
+
+        Terms that no modifier acts on are evaluated over all samples at once when they can be
+        (:meth:`~fitstiff.terms.base.Term.run_all`: stateless terms, the polytropic chamber),
+        unless a series compliance couples every term to the piston motion; only the rest is
+        stepped in the ``lax.scan``. The results are the same; the scan body is smaller (under
+        ``vmap`` over the posterior's walkers its per-step cost dominates).
+        """
         modifiers = self.of_kind("modifier")
         forcing = self.of_kind("chamber", "friction", "force")
         series = self.of_kind("series")
-        chamber = next((t for t in forcing if t.kind == "chamber"), None)
+        steps = self.steps(drive)
+        targeted = {m.targets for m in modifiers}
+        direct = {}
+        if not series:
+            for i, term in enumerate(forcing):
+                out = None if term.kind in targeted else term.run_all(steps, drive)
+                if out is not None:
+                    direct[i] = out
+        scanned = [t for i, t in enumerate(forcing) if i not in direct]
+        chamber = next((t for t in scanned if t.kind == "chamber"), None)
 
         def evaluate(states, s):
             mod_states, force_states = states
@@ -146,14 +163,14 @@ class Model(eqx.Module):
                 new_mod.append(st)
                 mod = mod.combine(m)
             new_force, forces = [], []
-            for term, st in zip(forcing, force_states):
+            for term, st in zip(scanned, force_states):
                 st, f = term.step(st, s, drive, mod)
                 new_force.append(st)
                 forces.append(f)
             if chamber is None:
                 p = (drive.p_amb, drive.p_amb)
             else:
-                p = chamber.pressures(new_force[forcing.index(chamber)], s, drive)
+                p = chamber.pressures(new_force[scanned.index(chamber)], s, drive)
             return (tuple(new_mod), tuple(new_force)), (jnp.stack(forces), *p)
 
         def body(carry, s):
@@ -178,11 +195,19 @@ class Model(eqx.Module):
             new_states, out = at(dxp)
             return (new_states, x_piston + dxp), out
 
-        init = (tuple(t.init(drive) for t in modifiers),
-                tuple(t.init(drive) for t in forcing))
-        steps = self.steps(drive)
-        _, (forces, p_a, p_b) = jax.lax.scan(body, (init, steps.x[0]), steps)
         n = steps.x.shape[0]
+        p_a = p_b = drive.p_amb
+        columns = {}
+        if scanned:
+            init = (tuple(t.init(drive) for t in modifiers),
+                    tuple(t.init(drive) for t in scanned))
+            _, (stepped, p_a, p_b) = jax.lax.scan(body, (init, steps.x[0]), steps)
+            columns = {forcing.index(t): stepped[:, k] for k, t in enumerate(scanned)}
+        for i, (states, force) in direct.items():
+            columns[i] = jnp.broadcast_to(force, (n,))
+            if forcing[i].kind == "chamber":
+                p_a, p_b = forcing[i].pressures(states, steps, drive)
+        forces = jnp.stack([columns[i] for i in range(len(forcing))], axis=1)
         return Prediction(force=jnp.sum(forces, axis=1) + drive.force_offset,
                           contributions=forces, pressure_a=jnp.broadcast_to(p_a, (n,)),
                           pressure_b=jnp.broadcast_to(p_b, (n,)))

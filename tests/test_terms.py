@@ -160,6 +160,54 @@ def test_chamber_measured_and_vented_modes(paper_rig):
     np.testing.assert_allclose(np.asarray(pred.force), -rig.area_a * (p_a - 101325.0))
 
 
+@pytest.mark.parametrize("spec, rig, drive_kw", [
+    ("chamber", {"bore_mm": 32, "stroke_mm": 700, "start_position_mm": 350, "supply_bar": 6}, {}),
+    ("chamber", {"bore_mm": 40, "rod_mm": 16, "stroke_mm": 200, "start_position_mm": 30,
+                 "supply_bar": 4, "dead_length_a_mm": 12.0}, {}),
+    ("chamber", {"bore_mm": 25, "stroke_mm": 100, "start_position_mm": 50, "supply_bar": 3},
+     {"pressure_a": "measured"}),
+    ("chamber", {"bore_mm": 25, "stroke_mm": 100, "start_position_mm": 50, "supply_bar": 2},
+     {"vented": ("b",)}),
+    ("viscous", None, {}), ("inertia", None, {}), ("force_drift", None, {})])
+def test_terms_evaluated_outside_the_scan_equal_stepping(spec, rig, drive_kw):
+    """The contract of Term.run_all: the same states and forces as stepping from init."""
+    from fitstiff.log import Rig
+    from fitstiff.terms import Modulation
+
+    t, x = triangle([1e-3, 5e-3])
+    x = x + 0.2e-3                        # the chambers close at x[0], not at 0
+    if "pressure_a" in drive_kw:
+        drive_kw = {**drive_kw, "pressure_a": 101325.0 + 3e5 + 1e3 * np.sin(t)}
+    drive = make_drive(displacement=x, time=t, needs_chamber=rig is not None,
+                       rig=None if rig is None else Rig.from_mapping(rig), **drive_kw)
+    model = build_model(spec, drives=[drive])
+    term = model.terms[0]
+    values = {"chamber": {"n": 1.3}, "viscous": {"c": 80.0}, "inertia": {"mass": 2.5},
+              "force_drift": {"drift": 0.3}}[spec]
+    term = Parameterization(model).with_values(model, values).terms[0]
+    steps = model.steps(drive)
+    states, forces = term.run_all(steps, drive)
+
+    def body(state, s):
+        state, force = term.step(state, s, drive, Modulation())
+        return state, (state, force)
+
+    _, (stepped_states, stepped) = jax.lax.scan(body, term.init(drive), steps)
+    scale = float(np.max(np.abs(np.asarray(stepped)))) or 1.0
+    np.testing.assert_allclose(np.asarray(forces), np.asarray(stepped), rtol=0,
+                               atol=1e-11 * scale)
+    for got, want in zip(jax.tree_util.tree_leaves(states),
+                         jax.tree_util.tree_leaves(stepped_states)):
+        np.testing.assert_allclose(np.asarray(got), np.asarray(want), rtol=1e-12)
+
+
+@pytest.mark.parametrize("spec", ["dahl", "lugre", "maxwell_slip:3", "coulomb"])
+def test_terms_with_a_memory_are_stepped(spec):
+    t, x = triangle([1e-3])
+    model, drive, _ = run(spec, t, x)
+    assert model.terms[0].run_all(model.steps(drive), drive) is None
+
+
 # -- gradients and vmap ----------------------------------------------------------------------
 GRADIENT_SPECS = ["chamber+dahl", "chamber+dahl:alpha", "chamber+lugre+viscous",
                   "chamber+maxwell_slip:3", "coulomb+viscous"] + [

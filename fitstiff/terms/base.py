@@ -26,7 +26,7 @@ from typing import Any, ClassVar, NamedTuple
 
 import equinox as eqx
 
-from fitstiff._jax import jnp
+from fitstiff._jax import jax, jnp
 from fitstiff.params import Param
 
 __all__ = ["Modulation", "Step", "Term", "KINDS"]
@@ -112,6 +112,19 @@ class Term(eqx.Module):
     def step(self, state, s: Step, drive, mod: Modulation):
         """One sample: ``(new_state, force_N)``. Forces are + toward the B cap."""
         raise NotImplementedError
+
+    def run_all(self, steps: Step, drive):
+        """All samples at once, outside the scan: ``(states, forces)`` with a leading sample
+        axis, or ``None`` to be stepped in the scan (the default for terms with a state).
+
+        The composition uses it only when no modifier acts on the term and no series
+        compliance couples the terms, and it must equal stepping from :meth:`init` with a
+        neutral :class:`Modulation`. Stateless terms get it here (their step ``vmap``-ed over
+        the samples); terms whose state has a closed form (the polytropic chamber) override it.
+        """
+        if jax.tree_util.tree_leaves(self.init(drive)):
+            return None
+        return jax.vmap(lambda s: self.step((), s, drive, Modulation()))(steps)
 
     def modulate(self, state, s: Step, drive):
         """Modifiers: ``(new_state, Modulation)``."""

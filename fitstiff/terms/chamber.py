@@ -74,8 +74,24 @@ class Chamber(Term):
                 decay = jnp.exp(-mod.leak_rate * s.dt)
                 p_a, p_b = p_eq + (p_a - p_eq) * decay, p_eq + (p_b - p_eq) * decay
         state = (p_a, p_b, th_a, th_b)
+        return state, self.force(state, s, drive)
+
+    def run_all(self, steps: Step, drive):
+        """:meth:`step` over all samples without heat exchange or leakage: the per-step
+        polytropic ratios telescope to ``p = p0 (V(x0) / V(x))**n`` from the first sample."""
+        one = jnp.ones_like(steps.x)
+        x0 = steps.x[0]
+        p_a, p_b = drive.p_a0 * one, drive.p_b0 * one
+        if "closed" in drive.modes:
+            p_a = p_a * jnp.exp(self.n * jnp.log((drive.l_a0 + x0) / (drive.l_a0 + steps.x)))
+            p_b = p_b * jnp.exp(self.n * jnp.log((drive.l_b0 - x0) / (drive.l_b0 - steps.x)))
+        state = (p_a, p_b, one, one)
+        return state, self.force(state, steps, drive)
+
+    def force(self, state, s: Step, drive):
+        """Chamber force (N, + toward the B cap) of a state at one step (or all samples)."""
         pa, pb = self.pressures(state, s, drive)
-        return state, drive.area_b * (pb - drive.p_amb) - drive.area_a * (pa - drive.p_amb)
+        return drive.area_b * (pb - drive.p_amb) - drive.area_a * (pa - drive.p_amb)
 
     @staticmethod
     def pressures(state, s: Step, drive):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from fitstiff._jax import jnp
 from fitstiff.params import Param
 from fitstiff.terms.base import Modulation, Step, Term
 
@@ -53,3 +54,7 @@ class ForceDrift(Term):
 
     def step(self, t0, s: Step, drive, mod: Modulation):
         return t0, self.drift * (s.t - t0)
+
+    def run_all(self, steps: Step, drive):
+        t0 = jnp.broadcast_to(drive.time[0], steps.t.shape)
+        return t0, self.drift * (steps.t - t0)
