@@ -1,8 +1,9 @@
 """What every model term is: an immutable JAX module with physical parameters and a step.
 
 A model is a sum of terms (``chamber+dahl+viscous``). The composition
-(:mod:`fitstiff.model`) runs all terms together in one ``lax.scan`` over the samples of a
-:class:`~fitstiff.drive.Drive`. Terms come in five kinds:
+(:mod:`fitstiff.model`) runs the terms together in one ``lax.scan`` over the samples of a
+:class:`~fitstiff.drive.Drive`; terms that need no scan (:meth:`Term.run_all`: stateless ones,
+the polytropic chamber) are evaluated over all samples at once. Terms come in five kinds:
 
 ``chamber``   the gas spring; its step returns the chamber force.
 ``friction``  a seal-friction base (Dahl, LuGre, Maxwell-slip, Coulomb); its step returns the
