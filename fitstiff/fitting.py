@@ -37,7 +37,7 @@ from fitstiff.log import Log
 from fitstiff.model import Model
 from fitstiff.params import Parameterization
 from fitstiff.problem import Problem
-from fitstiff.terms.friction import Coulomb, Dahl, LuGre, MaxwellSlip
+from fitstiff.terms.base import FrictionEstimate
 
 __all__ = ["FitResult", "fit", "fit_problem", "initial_guess", "SOLVERS"]
 
@@ -219,35 +219,17 @@ def initial_guess(problem: Problem) -> tuple[Model, dict[str, np.ndarray]]:
             slope = np.polyfit(x[after], force[after], 1)[0] - k_chamber
             rel = min(abs(force[r] - offset) / level, 1.0)
             slopes.append((abs(slope), rel))
-    level = float(np.median(levels))
-    tangent = float(np.median([s for s, _ in slopes])) if slopes else None
-    reversal_state = float(np.median([r for _, r in slopes])) if slopes else 1.0
-    terms = list(model.terms)
-    fixed = problem.par_fixed
-    first = True
-    for i, term in enumerate(terms):
-        if term.kind != "friction":
-            continue
-        share = 1.0 if first else 0.05     # later bases start small (candidate effects)
-        first = False
-        if isinstance(term, MaxwellSlip):
-            slope = (tangent or 40e3) * share
-            fresh = MaxwellSlip.with_elements(int(np.shape(term.k)[0]), slope=slope,
-                                              breakaway=level * share)
-            if not {"k_1", "delta_1"} & fixed:
-                terms[i] = fresh
-            continue
-        sigma0 = (tangent / (1.0 + reversal_state)) if tangent else None
-        if isinstance(term, (Dahl, LuGre)) and sigma0:
-            terms[i] = dataclasses.replace(terms[i], sigma0=sigma0 * share)
-        if isinstance(term, Dahl | Coulomb):
-            terms[i] = dataclasses.replace(terms[i], Fc=level * share)
-        if isinstance(term, LuGre):
-            terms[i] = dataclasses.replace(terms[i], Fc=0.85 * level * share, Fs=level * share)
+    estimate = FrictionEstimate(
+        level=float(np.median(levels)),
+        tangent=float(np.median([s for s, _ in slopes])) if slopes else None,
+        reversal_state=float(np.median([r for _, r in slopes])) if slopes else 1.0)
+    bases = model.of_kind("friction")
+    terms = [t.start(estimate, share=1.0 / len(bases)) if t.kind == "friction" else t
+             for t in model.terms]
     guess = model.with_terms(tuple(terms))
     # restore anything the user fixed
     par_all = Parameterization(model)
-    keep = {n: v for n, v in par_all.values(model).items() if n in fixed}
+    keep = {n: v for n, v in par_all.values(model).items() if n in problem.par_fixed}
     if keep:
         guess = Parameterization(guess).with_values(guess, keep)
     return guess, {"offset": np.asarray(offsets), "friction_state0": np.asarray(states),

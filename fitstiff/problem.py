@@ -118,8 +118,7 @@ class Problem:
         self.denoised = [self._want_denoise(denoise, s) for s in self.segmentations]
         self.drives: list[Drive] = []
         for log, seg, den in zip(self.logs, self.segmentations, self.denoised):
-            still = (seg.region == REGIONS.index("standstill")).astype(float)
-            drive = drive_from_log(log, needs_chamber=needs, still=still,
+            drive = drive_from_log(log, needs_chamber=needs, still=seg.still,
                                    what=f"model '{spec}'",
                                    needs_supply="closing_pressure" not in free)
             if den:

@@ -61,6 +61,7 @@ __all__ = [
     "Segmentation",
     "estimate_noise",
     "segment",
+    "standstill",
 ]
 
 REGIONS = ("presliding", "sliding", "dwell", "standstill", "stroke_end")
@@ -183,6 +184,17 @@ class Segmentation:
         """Fraction of samples in each available region (motion regions sum to 1)."""
         n = max(self.n_samples, 1)
         return {r: float(np.count_nonzero(self.mask(r))) / n for r in self.available_regions}
+
+    @property
+    def still(self) -> np.ndarray:
+        """Per sample 1.0 while the piston stands still (the ``standstill`` region), else 0.0.
+
+        The one definition of standing still: the model's dwell-dependent terms are driven
+        by it (:class:`~fitstiff.drive.Drive` ``still``), the simulator derives it from the
+        true displacement with :func:`standstill`, and the diagnosis reads the ``dwell`` and
+        ``standstill`` regions from the same pauses.
+        """
+        return (self.region == _STANDSTILL).astype(np.float64)
 
     def to_frame(self) -> pd.DataFrame:
         """Tidy per-sample tags, one row per sample.
@@ -369,6 +381,32 @@ def _positive(name: str, value: float | None, where: str) -> None:
                          "give a positive number")
 
 
+def standstill(displacement: np.ndarray, time: np.ndarray, *,
+               threshold: float | None = None, min_pause: float = DEFAULT_MIN_PAUSE,
+               pause_band: float | None = None, median_window: int = 3) -> np.ndarray:
+    """Per sample 1.0 inside a pause, else 0.0: :attr:`Segmentation.still` from arrays.
+
+    The same rule as :func:`segment` (a span of at least ``min_pause`` within ``pause_band``),
+    for callers that have a displacement and time but no :class:`~fitstiff.log.Log` (the
+    simulator, on the true displacement).
+    """
+    raw = np.asarray(displacement, dtype=np.float64)
+    x = _running_median(raw, int(median_window))
+    if threshold is None:
+        threshold = _default_threshold(raw)
+    pauses = _pauses(x, np.asarray(time, dtype=np.float64), band=pause_band or threshold,
+                     min_pause=min_pause)
+    still = np.zeros(raw.size)
+    for start, stop in pauses:
+        still[start:stop] = 1.0
+    return still
+
+
+def _default_threshold(raw: np.ndarray) -> float:
+    return max(NOISE_MULTIPLE * estimate_noise(raw), RESOLUTION_MULTIPLE * _resolution(raw),
+               THRESHOLD_FLOOR)
+
+
 def segment(
     log: Log,
     *,
@@ -422,8 +460,7 @@ def segment(
     x = _running_median(raw, int(median_window))
     noise = estimate_noise(raw)
     if threshold is None:
-        threshold = max(NOISE_MULTIPLE * noise, RESOLUTION_MULTIPLE * _resolution(raw),
-                        THRESHOLD_FLOOR)
+        threshold = _default_threshold(raw)
     notes: list[str] = []
 
     reversals, first_direction, first_start = _hysteresis_reversals(x, threshold)

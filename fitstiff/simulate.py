@@ -41,6 +41,7 @@ from fitstiff.model import Model, Prediction, build_model
 from fitstiff.output import to_jsonable, write_atomic
 from fitstiff.params import Parameterization, named_params
 from fitstiff.programs import Program
+from fitstiff.segmentation import standstill
 
 __all__ = ["Noise", "SimulatedLog", "simulate", "format_log", "write_log", "DEFAULT_RATE_HZ",
            "CSV_DIGITS"]
@@ -145,7 +146,7 @@ def simulate(model_or_spec: Model | str, program: Program, *, rig: Rig,
     model = _with_display_values(model, params or {})
     time, x_true = program.sample(rate_hz)
     _check_stroke(x_true, rig, program)
-    drive = make_drive(displacement=x_true, time=time, rig=rig, still=_standstill(x_true),
+    drive = make_drive(displacement=x_true, time=time, rig=rig, still=standstill(x_true, time),
                        name=name, needs_chamber=model.needs_chamber,
                        what=f"model '{model.spec}'")
     prediction = model.run(drive)
@@ -230,16 +231,6 @@ def _check_stroke(x: np.ndarray, rig: Rig, program: Program) -> None:
                          f"moves the piston over {low * 1e3:.4g}..{high * 1e3:.4g} mm, outside "
                          f"the stroke 0..{rig.stroke * 1e3:.4g} mm",
                          "use smaller amplitudes or another start position")
-
-
-def _standstill(x: np.ndarray) -> np.ndarray:
-    """1.0 at samples where the true displacement did not change since the previous one.
-
-    The first sample has no predecessor and counts as moving (nothing is known before it).
-    """
-    still = np.zeros(x.shape[0])
-    still[1:] = np.diff(x) == 0
-    return still
 
 
 # ------------------------------------------------------------------------------------ files

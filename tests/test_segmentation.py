@@ -437,3 +437,24 @@ def test_real_oring_logs_have_19_reversals(pressure):
     # peaks and valleys alternate about 40 mm apart
     swings = np.abs(np.diff(log.displacement[seg.reversals]))
     assert np.all((swings > 37e-3) & (swings < 42e-3))
+
+
+def test_one_standstill_definition_for_simulator_and_fit():
+    """The simulator's dwell clock and the fit's (the segmentation's standstill region) are
+    one definition: on the noise-free log they agree sample for sample, on a noisy one the
+    pause edges move by at most two samples each."""
+    from fitstiff.log import Rig
+    from fitstiff.programs import Concat, Pause, Ramp
+    from fitstiff.simulate import Noise, simulate
+
+    program = Concat(parts=(Ramp(distance_mm=1.0, rate_mm_s=1.0), Pause(duration_s=1.0),
+                            Ramp(distance_mm=-1.0, rate_mm_s=1.0), Pause(duration_s=0.5),
+                            Ramp(distance_mm=0.5, rate_mm_s=1.0)))
+    rig = Rig(bore=0.032, stroke=0.7, start_position=0.35, supply_pressure=6e5)
+    clean = simulate("dahl+dwell_stiction", program, rig=rig, rate_hz=200.0,
+                     noise=Noise(force_N=0, displacement_um=0, pressure_mbar=0))
+    still = np.asarray(clean.drive.still)
+    assert still.sum() > 250
+    np.testing.assert_array_equal(segment(clean.log).still, still)
+    noisy = simulate("dahl+dwell_stiction", program, rig=rig, rate_hz=200.0, seed=3)
+    assert np.count_nonzero(segment(noisy.log).still != still) <= 8

@@ -30,7 +30,7 @@ import equinox as eqx
 from fitstiff._jax import jax, jnp
 from fitstiff.params import Param
 
-__all__ = ["Modulation", "Step", "Term", "KINDS"]
+__all__ = ["FrictionEstimate", "Modulation", "Step", "Term", "KINDS"]
 
 KINDS = ("chamber", "friction", "force", "modifier", "input", "series")
 
@@ -81,6 +81,22 @@ class Modulation(NamedTuple):
         return one if self.slope is None else self.slope
 
 
+class FrictionEstimate(NamedTuple):
+    """What the data say about the seal before any fit (see
+    :func:`fitstiff.fitting.initial_guess`); friction bases start from it
+    (:meth:`Term.start`).
+
+    ``level``: sliding friction level (N), half the spread of the sliding force plateaus with
+    the chamber force removed; ``tangent``: slope of the friction force right after the
+    reversals (N/m), ``None`` when no reversal shows one; ``reversal_state``: median
+    ``|F| / level`` at those reversals (1.0 after a saturated branch).
+    """
+
+    level: float
+    tangent: float | None
+    reversal_state: float
+
+
 class Term(eqx.Module):
     """Base class. Subclasses set ``name``, ``kind`` and implement what their kind needs."""
 
@@ -126,6 +142,12 @@ class Term(eqx.Module):
         if jax.tree_util.tree_leaves(self.init(drive)):
             return None
         return jax.vmap(lambda s: self.step((), s, drive, Modulation()))(steps)
+
+    def start(self, estimate: FrictionEstimate, *, share: float = 1.0) -> Term:
+        """This term with data-driven starting values (friction bases carry ``share`` of the
+        estimated friction; several bases split it). Other terms keep their values: effects
+        start where they are (their defaults, or their null value in the diagnosis)."""
+        return self
 
     def modulate(self, state, s: Step, drive):
         """Modifiers: ``(new_state, Modulation)``."""

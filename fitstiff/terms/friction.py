@@ -15,13 +15,15 @@ and any stiffness:
 
 from __future__ import annotations
 
+import dataclasses
+
 import equinox as eqx
 import numpy as np
 
 from fitstiff._jax import jnp
 from fitstiff.errors import InputError
 from fitstiff.params import Param
-from fitstiff.terms.base import Modulation, Step, Term
+from fitstiff.terms.base import FrictionEstimate, Modulation, Step, Term
 
 __all__ = ["Coulomb", "Dahl", "LuGre", "MaxwellSlip"]
 
@@ -79,11 +81,24 @@ class Dahl(Term):
         F_new = jnp.where(d == 0, F, d * fc * (1.0 - jnp.sign(y) * ay_new))
         return F_new, F_new
 
+    def start(self, estimate: FrictionEstimate, *, share: float = 1.0) -> Dahl:
+        new = dataclasses.replace(self, Fc=estimate.level * share)
+        sigma0 = _sigma0_start(estimate)
+        return new if sigma0 is None else dataclasses.replace(new, sigma0=sigma0 * share)
+
     def presliding_slope(self):
         return self.sigma0
 
     def breakaway(self):
         return self.Fc
+
+
+def _sigma0_start(estimate: FrictionEstimate) -> float | None:
+    """Dahl/LuGre ``sigma0`` from the tangent after reversals: the tangent of a Dahl branch
+    at relative state ``r`` is ``sigma0 (1 + r)``."""
+    if not estimate.tangent:
+        return None
+    return estimate.tangent / (1.0 + estimate.reversal_state)
 
 
 class LuGre(Term):
@@ -118,6 +133,12 @@ class LuGre(Term):
         z_new = z_ss + (z - z_ss) * jnp.exp(-sigma * jnp.abs(s.dx) / g)
         z_dot = s.v - sigma * jnp.abs(s.v) * z_new / g
         return z_new, sigma * z_new + self.sigma1 * z_dot
+
+    def start(self, estimate: FrictionEstimate, *, share: float = 1.0) -> LuGre:
+        level = estimate.level * share
+        new = dataclasses.replace(self, Fc=0.85 * level, Fs=level)
+        sigma0 = _sigma0_start(estimate)
+        return new if sigma0 is None else dataclasses.replace(new, sigma0=sigma0 * share)
 
     def presliding_slope(self):
         return self.sigma0
@@ -164,6 +185,11 @@ class MaxwellSlip(Term):
                 Param("delta", "mm", 1e-3, 0.0, np.inf, "element slip displacement (W_i = k_i delta_i)",
                       transform="ordered", size=n))
 
+    def start(self, estimate: FrictionEstimate, *, share: float = 1.0) -> MaxwellSlip:
+        return self.with_elements(int(np.shape(self.k)[0]),
+                                  slope=(estimate.tangent or 40e3) * share,
+                                  breakaway=estimate.level * share)
+
     @property
     def slip_forces(self):
         return self.k * self.delta
@@ -199,6 +225,9 @@ class Coulomb(Term):
     def step(self, direction, s: Step, drive, mod: Modulation):
         direction = jnp.where(s.dx != 0, _direction(s.dx), direction)
         return direction, self.Fc * mod.level_or() * direction
+
+    def start(self, estimate: FrictionEstimate, *, share: float = 1.0) -> Coulomb:
+        return dataclasses.replace(self, Fc=estimate.level * share)
 
     def presliding_slope(self):
         return jnp.inf
