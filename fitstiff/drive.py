@@ -49,6 +49,8 @@ class Drive(eqx.Module):
     force_offset: jnp.ndarray    # N, added to the predicted force
     #: smoothed velocity (m/s) for rate-dependent terms; None: the difference quotient
     velocity: jnp.ndarray | None = None
+    #: the measured force (N) where a term takes it as an input (``rig_compliance:measured``)
+    measured_force: jnp.ndarray | None = None
     modes: tuple[str, str] = eqx.field(static=True, default=("closed", "closed"))
     #: per chamber: the logged pressure is an observation of a closed (modelled) chamber
     observed: tuple[bool, bool] = eqx.field(static=True, default=(False, False))
@@ -137,7 +139,9 @@ def make_drive(*, displacement, time=None, rig: Rig | None = None, pressure_a=No
 def drive_from_log(log: Log, *, needs_chamber: bool = False, needs_supply: bool = True,
                    still=None, what: str = "the chamber term") -> Drive:
     """The drive of a :class:`~fitstiff.log.Log`."""
-    return make_drive(displacement=log.displacement, time=log.time, rig=log.rig,
-                      pressure_a=log.pressure_a, pressure_b=log.pressure_b,
-                      vented=log.vented, still=still, name=log.name,
-                      needs_chamber=needs_chamber, needs_supply=needs_supply, what=what)
+    drive = make_drive(displacement=log.displacement, time=log.time, rig=log.rig,
+                       pressure_a=log.pressure_a, pressure_b=log.pressure_b,
+                       vented=log.vented, still=still, name=log.name,
+                       needs_chamber=needs_chamber, needs_supply=needs_supply, what=what)
+    return eqx.tree_at(lambda d: d.measured_force, drive, jnp.asarray(log.force),
+                       is_leaf=lambda v: v is None)

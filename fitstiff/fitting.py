@@ -185,10 +185,14 @@ def _correlation(cov: np.ndarray) -> np.ndarray:
 
 
 # -- starting values ----------------------------------------------------------------------
-def initial_guess(problem: Problem) -> tuple[Model, dict[str, np.ndarray]]:
+def initial_guess(problem: Problem, *,
+                  bases: Sequence[str] | None = None) -> tuple[Model, dict[str, np.ndarray]]:
     """Starting values from the data: levels from the sliding plateaus, slope from the samples
     right after reversals, offsets from the plateau midlines, the chamber from geometry.
 
+    Each friction base starts from :meth:`~fitstiff.terms.base.Term.start` with an equal
+    share of the estimate; ``bases`` names the bases that share it (default: all; the
+    diagnosis gives the baseline's, its candidate Maxwell-slip starts at its null).
     Fixed parameters keep their values; parameters the data do not inform keep the model's.
     """
     model = problem.model
@@ -223,8 +227,8 @@ def initial_guess(problem: Problem) -> tuple[Model, dict[str, np.ndarray]]:
         level=float(np.median(levels)),
         tangent=float(np.median([s for s, _ in slopes])) if slopes else None,
         reversal_state=float(np.median([r for _, r in slopes])) if slopes else 1.0)
-    bases = model.of_kind("friction")
-    terms = [t.start(estimate, share=1.0 / len(bases)) if t.kind == "friction" else t
+    bases = [t.name for t in model.of_kind("friction") if bases is None or t.name in bases]
+    terms = [t.start(estimate, share=1.0 / len(bases)) if t.name in bases else t
              for t in model.terms]
     guess = model.with_terms(tuple(terms))
     # restore anything the user fixed
@@ -279,7 +283,7 @@ class _Solver(eqx.Module):
 
     @eqx.filter_jit
     def __call__(self, theta0):
-        residuals = _materialised_jacobian(self.problem.residuals)
+        residuals = materialised_jacobian(self.problem.residuals)
 
         def fn(theta, _):
             return residuals(theta)
@@ -290,7 +294,7 @@ class _Solver(eqx.Module):
         return sol.value, sol.result, sol.stats["num_steps"], jnp.sum(r**2)
 
 
-def _materialised_jacobian(f):
+def materialised_jacobian(f):
     """``f`` whose JVP multiplies by a Jacobian built once per point with ``jacfwd``.
 
     The solvers linearise the residual function and then apply the linear map once per

@@ -214,6 +214,27 @@ class Parameterization:
             out[e.name] = float(v if e.element is None else v[e.element])
         return out
 
+    def physical_to_model(self, x, model):
+        """The model with its free fields set to the SI values ``x`` (flat, in the order of
+        :attr:`names`), bypassing the transforms (differentiable).
+
+        The physical-coordinates path: a score test differentiates here at a null value that
+        sits on a bound (viscous ``c = 0``, Stribeck ratio 1), where the transform's
+        derivative vanishes (``x = lower + exp(y)`` has ``dx/dy = 0`` as ``y -> -inf``).
+        ``physical_to_model(physical(y), m)`` equals ``to_model(y, m)``.
+        """
+        terms = list(model.terms)
+        for i, p, off in self._groups:
+            value = x[off:off + p.length]
+            value = value[0] if p.size is None else value
+            terms[i] = dataclasses.replace(terms[i], **{p.field: value})
+        return model.with_terms(tuple(terms))
+
+    def nulls(self) -> np.ndarray:
+        """Null value (SI) of every free element, NaN where its parameter has none."""
+        return np.array([np.nan if e.param.null is None else e.param.null
+                         for e in self.entries])
+
     def physical(self, y) -> jnp.ndarray:
         """Flat vector of SI values for unconstrained ``y`` (same order as :attr:`names`)."""
         parts = [p.forward(y[off:off + p.length]) for _, p, off in self._groups]

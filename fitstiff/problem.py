@@ -269,14 +269,17 @@ class Problem:
 
     def unpack(self, theta):
         """``(model, {nuisance: (n_logs,) values})`` for ``theta`` (differentiable)."""
-        model = self.par.to_model(theta[:self.par.size], self.model)
+        return self.par.to_model(theta[:self.par.size], self.model), self.nuisances(theta)
+
+    def nuisances(self, theta):
+        """``{nuisance: (n_logs,) values}`` of ``theta`` (its entries after the model's)."""
         out, off = {}, self.par.size
         for name in self.nuisance_names:
             block = theta[off:off + self.n_logs]
             out[name] = (jnp.tanh(block) if name == "friction_state0" else
                          block * 1e5 if name == "closing_pressure" else block)
             off += self.n_logs
-        return model, out
+        return out
 
     def log_jacobian(self, theta):
         """log |d(physical)/d(theta)| of the model part (nuisances: offsets and closing
@@ -351,15 +354,31 @@ class Problem:
     def predictions(self, theta, displacements=None):
         """Per group: the vmap-ed :class:`~fitstiff.model.Prediction` (leading log axis).
         ``displacements`` (shaped as :meth:`displacements`) replaces the model input."""
-        model, nuisances = self.unpack(theta)
+        return self.model_predictions(*self.unpack(theta), displacements)
+
+    def residuals_physical(self, x, theta):
+        """:meth:`residuals` with the model's free parameters given in SI (``x``, ordered as
+        ``par.names``) instead of ``theta``'s unconstrained entries; ``theta`` supplies the
+        nuisances. The path for score statistics at nulls on a bound
+        (:meth:`~fitstiff.params.Parameterization.physical_to_model`)."""
+        model = self.par.physical_to_model(x, self.model)
+        return self.model_residuals(model, self.nuisances(theta))
+
+    def model_predictions(self, model, nuisances, displacements=None):
+        """:meth:`predictions` of a given model and nuisance values."""
         displacements = displacements or (None,) * len(self._groups)
         return [jax.vmap(model.run)(self._group_drive(g, nuisances, x))
                 for g, x in zip(self._groups, displacements)]
 
     def residuals(self, theta, displacements=None):
         """Whitened residual vector (model - data), padded entries exactly 0."""
+        return self.model_residuals(*self.unpack(theta), displacements)
+
+    def model_residuals(self, model, nuisances, displacements=None):
+        """:meth:`residuals` of a given model and nuisance values."""
         parts = []
-        for group, pred in zip(self._groups, self.predictions(theta, displacements)):
+        for group, pred in zip(self._groups,
+                               self.model_predictions(model, nuisances, displacements)):
             parts.append(((pred.force - group.force) * group.weight).ravel())
             for c, measured in enumerate(group.pressure):
                 if measured is None:
@@ -379,6 +398,16 @@ class Problem:
                           "contributions": np.asarray(pred.contributions[row, :n]),
                           "pressure_a": np.asarray(pred.pressure_a[row, :n]),
                           "pressure_b": np.asarray(pred.pressure_b[row, :n])}
+        return out  # type: ignore[return-value]
+
+    def unpad(self, per_group) -> list[np.ndarray]:
+        """Per log (in order), unpadded: arrays given per group with a leading log axis (as
+        :meth:`predictions` returns them)."""
+        out: list[np.ndarray | None] = [None] * self.n_logs
+        for group, values in zip(self._groups, per_group):
+            values = np.asarray(values)
+            for row, i in enumerate(group.index):
+                out[i] = values[row, :len(self.logs[i])]
         return out  # type: ignore[return-value]
 
     def nuisance_template(self, theta=None) -> dict[str, np.ndarray]:
@@ -427,4 +456,6 @@ def _pad_drive(drive: Drive, n: int) -> Drive:
         pressure_b=jnp.asarray(_pad(drive.pressure_b, n)),
         still=jnp.asarray(_pad(drive.still, n)),
         velocity=None if drive.velocity is None else jnp.asarray(_pad(drive.velocity, n,
-                                                                       fill=0.0)))
+                                                                       fill=0.0)),
+        measured_force=(None if drive.measured_force is None
+                        else jnp.asarray(_pad(drive.measured_force, n))))

@@ -16,7 +16,8 @@ from fitstiff.params import find_param
 from fitstiff.problem import OPTIONAL_NUISANCES
 from fitstiff.segmentation import REGIONS
 
-__all__ = ["add_parser", "run", "parse_fix", "fit_options"]
+__all__ = ["add_parser", "run", "parse_fix", "fit_options", "add_data_arguments",
+           "problem_options"]
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -54,15 +55,7 @@ def add_fit_arguments(parser: argparse.ArgumentParser) -> None:
                        help="random restarts around the data-driven start (default 1)")
     group.add_argument("--seed", type=int, default=0)
     group.add_argument("--max-steps", type=int, default=400, metavar="N")
-    group.add_argument("--denoise", choices=("auto", "on", "off"), default="auto",
-                       help="reversal-preserving displacement denoising (default: auto, when "
-                            "the displacement noise is above 0.05 um)")
-    group.add_argument("--range", metavar="START:STOP",
-                       help="sample range used in every log (Python slice, e.g. 100:)")
-    group.add_argument("--skip", type=int, default=0, metavar="N",
-                       help="warm-up samples that drive the model but weigh 0")
-    group.add_argument("--weight", action="append", default=[], metavar="REGION=W",
-                       help=f"extra weight of a region ({', '.join(REGIONS[:4])})")
+    add_data_arguments(group)
 
 
 def parse_fix(items, spec: str) -> dict[str, float | None]:
@@ -116,13 +109,31 @@ def _weights(items):
     return out
 
 
+def add_data_arguments(group) -> None:
+    """Options that choose and prepare the data of a :class:`~fitstiff.problem.Problem`."""
+    group.add_argument("--denoise", choices=("auto", "on", "off"), default="auto",
+                       help="reversal-preserving displacement denoising (default: auto, when "
+                            "the displacement noise is above 0.05 um)")
+    group.add_argument("--range", metavar="START:STOP",
+                       help="sample range used in every log (Python slice, e.g. 100:)")
+    group.add_argument("--skip", type=int, default=0, metavar="N",
+                       help="warm-up samples that drive the model but weigh 0")
+    group.add_argument("--weight", action="append", default=[], metavar="REGION=W",
+                       help=f"extra weight of a region ({', '.join(REGIONS[:4])})")
+
+
+def problem_options(args) -> dict[str, object]:
+    """Keyword arguments of :class:`~fitstiff.problem.Problem` given by
+    :func:`add_data_arguments`."""
+    return {"denoise": {"auto": "auto", "on": True, "off": False}[args.denoise],
+            "sample_range": _range(args.range), "skip": args.skip,
+            "weights": _weights(args.weight)}
+
+
 def fit_options(args) -> dict[str, object]:
     """Keyword arguments of :func:`fitstiff.fitting.fit` from the parsed options."""
     return {"solver": args.solver, "starts": args.starts, "seed": args.seed,
-            "max_steps": args.max_steps,
-            "denoise": {"auto": "auto", "on": True, "off": False}[args.denoise],
-            "sample_range": _range(args.range), "skip": args.skip,
-            "weights": _weights(args.weight), "free": args.free}
+            "max_steps": args.max_steps, **problem_options(args), "free": args.free}
 
 
 def run(args) -> int:

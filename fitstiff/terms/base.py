@@ -106,6 +106,9 @@ class Term(eqx.Module):
     targets: ClassVar[str | None] = None
     #: one line for --help and docs
     summary: ClassVar[str] = ""
+    #: effects: the excitation that makes the effect testable (the diagnosis says to record it
+    #: when the logs cannot test the effect)
+    excitation: ClassVar[str] = ""
 
     @classmethod
     def from_spec(cls, arg: str | None, *, drives=()) -> Term:

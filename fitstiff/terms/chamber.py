@@ -28,21 +28,35 @@ class Chamber(Term):
     name = "chamber"
     kind = "chamber"
     summary = "closed-chamber gas spring (measured pressures if logged, else polytropic, n fitted)"
+    excitation = "closed chambers and motion of a millimetre or more, best at several positions or pressures"
 
     n: float = 1.3
+    #: factor on the chamber force, a parameter only for ``chamber:gated``
+    gate: float = 1.0
     #: False when every chamber of every log is measured or vented: then n is not a parameter
     closed: bool = eqx.field(static=True, default=True)
+    #: ``chamber:gated``: the force is scaled by ``gate`` (null 0), so that a model with the
+    #: chamber nests the one without it - the chamber as a candidate effect of the diagnosis
+    #: on a friction-only baseline (every other effect nests its baseline by its own null)
+    gated: bool = eqx.field(static=True, default=False)
 
     @classmethod
     def from_spec(cls, arg, *, drives=()):
-        super().from_spec(arg)
+        if arg not in (None, "gated"):
+            super().from_spec(arg)
         closed = not drives or any("closed" in d.modes for d in drives)
-        return cls(closed=closed)
+        return cls(closed=closed, gated=arg == "gated")
 
     def params(self):
-        if not self.closed:
-            return ()
-        return (Param("n", "-", 1.0, 1.0, 1.67, "polytropic exponent (1 isothermal, 1.4 adiabatic)"),)
+        out = ()
+        if self.closed:
+            out += (Param("n", "-", 1.0, 1.0, 1.67,
+                          "polytropic exponent (1 isothermal, 1.4 adiabatic)"),)
+        if self.gated:
+            out += (Param("gate", "-", 1.0, 0.0, 2.0,
+                          "factor on the chamber force (1: the gas spring as modelled)",
+                          null=0.0),)
+        return out
 
     def init(self, drive):
         one = jnp.ones(())
@@ -93,7 +107,8 @@ class Chamber(Term):
     def force(self, state, s: Step, drive):
         """Chamber force (N, + toward the B cap) of a state at one step (or all samples)."""
         pa, pb = self.pressures(state, s, drive)
-        return drive.area_b * (pb - drive.p_amb) - drive.area_a * (pa - drive.p_amb)
+        force = drive.area_b * (pb - drive.p_amb) - drive.area_a * (pa - drive.p_amb)
+        return force * self.gate if self.gated else force
 
     @staticmethod
     def pressures(state, s: Step, drive):

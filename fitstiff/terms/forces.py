@@ -15,6 +15,7 @@ class Viscous(Term):
     name = "viscous"
     kind = "force"
     summary = "viscous friction c v"
+    excitation = "logs at two or more clearly different speeds (e.g. 1 and 20 mm/s)"
 
     c: float = 50.0
 
@@ -29,6 +30,7 @@ class Inertia(Term):
     name = "inertia"
     kind = "force"
     summary = "m a of the moving mass"
+    excitation = "motion with acceleration: sine sweeps or fast reversals (the force of m a must exceed the noise)"
 
     mass: float = 1.0
 
@@ -43,6 +45,7 @@ class ForceDrift(Term):
     name = "force_drift"
     kind = "force"
     summary = "slow linear drift of the force channel's offset"
+    excitation = "a longer log, or pauses spread over it, so a slow offset change shows against the noise"
 
     drift: float = 0.0
 

@@ -151,6 +151,7 @@ class MaxwellSlip(Term):
     name = "maxwell_slip"
     kind = "friction"
     summary = "Maxwell-slip: N elasto-slide elements (k_i, slip displacement delta_i); 'maxwell_slip:N'"
+    excitation = "nested minor loops (a small reversal inside a larger loop) or triangles of several amplitudes"
 
     k: jnp.ndarray = eqx.field(default_factory=lambda: jnp.full(4, 10e3))
     delta: jnp.ndarray = eqx.field(
@@ -181,7 +182,7 @@ class MaxwellSlip(Term):
 
     def params(self):
         n = int(np.shape(self.k)[0])
-        return (Param("k", "N/mm", 1e3, 0.0, np.inf, "element stiffness", size=n),
+        return (Param("k", "N/mm", 1e3, 0.0, np.inf, "element stiffness", size=n, null=0.0),
                 Param("delta", "mm", 1e-3, 0.0, np.inf, "element slip displacement (W_i = k_i delta_i)",
                       transform="ordered", size=n))
 

@@ -15,13 +15,14 @@ from fitstiff._jax import jnp
 from fitstiff.params import Param
 from fitstiff.terms.base import Term
 
-__all__ = ["RigCompliance", "TimeDelay"]
+__all__ = ["MeasuredForceCompliance", "RigCompliance", "TimeDelay"]
 
 
 class TimeDelay(Term):
     name = "time_delay"
     kind = "input"
     summary = "the force channel lags the displacement channel"
+    excitation = "a time column and fast reversals or a sine sweep (the lag shows where the force changes quickly)"
 
     delay: float = 0.0
 
@@ -38,9 +39,33 @@ class RigCompliance(Term):
     name = "rig_compliance"
     kind = "series"
     summary = "a spring in series between the displacement sensor and the piston"
+    excitation = "reversals in the pre-sliding range (small-amplitude loops), where the seal is stiffest"
 
     compliance: float = 1e-6
+
+    @classmethod
+    def from_spec(cls, arg, *, drives=()):
+        if arg == "measured":
+            return MeasuredForceCompliance()
+        return super().from_spec(arg)
 
     def params(self):
         return (Param("compliance", "mm/N", 1e-3, 0.0, np.inf,
                       "series compliance of the rig (1 / rig stiffness)", null=0.0),)
+
+
+class MeasuredForceCompliance(RigCompliance):
+    """``rig_compliance:measured``: the same series spring, with the piston displacement
+    taken as ``x_sensor - compliance * F_measured`` (the logged force as an input) instead of
+    solving ``x_piston = x_sensor - compliance * F_model`` every step. Equal up to the force
+    noise times the compliance; no Newton iteration in the scan and no coupling of every term
+    to the piston motion, so the rest of the model keeps its all-samples evaluation. The
+    diagnosis screens and refits the effect this way; the simulator uses the series form.
+    """
+
+    kind = "input"
+
+    def transform_input(self, drive, x):
+        if drive.measured_force is None:
+            return x
+        return x - self.compliance * drive.measured_force

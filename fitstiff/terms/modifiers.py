@@ -24,6 +24,7 @@ class Stribeck(Term):
     kind = "modifier"
     targets = "friction"
     summary = "friction level falls from Fs = ratio * Fc at rest to Fc with speed"
+    excitation = "slow (below 1 mm/s) and fast (above 10 mm/s) sliding in the same or comparable logs"
 
     stribeck_ratio: float = 1.2
     stribeck_vs: float = 2e-3
@@ -45,6 +46,7 @@ class Asymmetry(Term):
     kind = "modifier"
     targets = "friction"
     summary = "friction level (and slope) differ between the two directions"
+    excitation = "sliding in both directions (full loops, not one-way ramps)"
 
     level_asym: float = 0.0
     slope_asym: float = 0.0
@@ -69,6 +71,7 @@ class PressureFriction(Term):
     kind = "modifier"
     targets = "friction"
     summary = "friction level rises with chamber pressure: exp(beta (p - p_ref))"
+    excitation = "logs at two or more supply pressures, or a logged chamber pressure that varies"
 
     beta: float = 0.0
     #: reference gauge pressure (Pa) at which the friction base's levels apply
@@ -99,6 +102,7 @@ class DwellStiction(Term):
     kind = "modifier"
     targets = "friction"
     summary = "extra breakaway after a standstill, growing with its duration"
+    excitation = "pauses (standstills of 0.2 s or more, better several of different lengths) followed by motion"
 
     dwell_gain: float = 0.3
     dwell_tau: float = 1.0
@@ -129,6 +133,7 @@ class HeatTransfer(Term):
     kind = "modifier"
     targets = "chamber"
     summary = "gas-wall heat exchange: rate-dependent stiffness between adiabatic and isothermal"
+    excitation = "closed chambers moved at two or more clearly different rates (or with pauses after a stroke), with the chamber pressures logged"
 
     heat_rate: float = 1.0
 
@@ -145,6 +150,7 @@ class Leakage(Term):
     kind = "modifier"
     targets = "chamber"
     summary = "the pressure difference across the piston relaxes (leak past the seal)"
+    excitation = "closed chambers held displaced for seconds (pauses away from the start), with the chamber pressures logged"
 
     leak_rate: float = 0.05
 

@@ -1,0 +1,60 @@
+"""``fitstiff diagnose``: where a baseline misses the logs, which effect explains it, how far
+the gap shrinks (DESIGN §6)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+from fitstiff.cli._common import (add_log_arguments, add_out_argument, input_files,
+                                  logs_from_args, reading_options)
+from fitstiff.cli.fit import add_data_arguments, problem_options
+from fitstiff.diagnosis import ALPHA, MIN_SHRINK, diagnose
+from fitstiff.diagnosis.supermodel import CANDIDATES
+from fitstiff.output import OutputDir, to_jsonable
+
+__all__ = ["add_parser", "run"]
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    parser = subparsers.add_parser(
+        "diagnose", help="sim-to-real gap diagnosis against a baseline model",
+        description="Fit the baseline, locate its held-out misfit by region against the noise "
+                    "floor, screen every candidate effect with a score test, refit the "
+                    "promising ones on held-out data and accept them greedily. Writes "
+                    "diagnosis.json and a manifest.")
+    add_log_arguments(parser)
+    group = parser.add_argument_group("diagnosis")
+    group.add_argument("--baseline", default="chamber+dahl", metavar="SPEC",
+                       help="the model whose gap is diagnosed (default chamber+dahl)")
+    group.add_argument("--candidates", default="all", metavar="all|LIST",
+                       help="'all' or a comma-separated list of: " + ", ".join(CANDIDATES))
+    group.add_argument("--alpha", type=float, default=ALPHA,
+                       help=f"family-wise level of the score screen (default {ALPHA})")
+    group.add_argument("--min-shrink", type=float, default=MIN_SHRINK,
+                       help="share of the held-out gap above the noise an effect must remove "
+                            f"(default {MIN_SHRINK})")
+    add_data_arguments(group)
+    parser.add_argument("--json", action="store_true", help="print diagnosis.json to stdout")
+    add_out_argument(parser)
+    parser.set_defaults(func=run)
+    return parser
+
+
+def run(args) -> int:
+    logs = logs_from_args(args)
+    options = problem_options(args)
+    out = OutputDir(args.out, inputs=input_files(logs, args),
+                    options={"baseline": args.baseline, "candidates": args.candidates,
+                             "alpha": args.alpha, "min_shrink": args.min_shrink, **options,
+                             "reading": reading_options(args)})
+    result = diagnose(logs, baseline=args.baseline, candidates=args.candidates,
+                      alpha=args.alpha, min_shrink=args.min_shrink, **options)
+    out.write_json("diagnosis.json", result.to_dict())
+    out.finish()
+    if args.json:
+        print(json.dumps(to_jsonable(result.to_dict()), indent=2))
+    else:
+        print(result.summary())
+        print(f"wrote {out.path / 'diagnosis.json'}")
+    return 0

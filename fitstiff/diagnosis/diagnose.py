@@ -1,0 +1,280 @@
+""":func:`diagnose`: where the baseline misses, which effect explains it, how far the gap shrinks.
+
+The steps (DESIGN §6):
+
+1. build the baseline and every candidate as one compiled super-model
+   (:class:`~fitstiff.diagnosis.supermodel.SuperProblem`), fit the baseline, estimate each
+   log's noise floor from the data alone (:func:`~fitstiff.diagnosis.noise.noise_floor`);
+2. **where**: the baseline's held-out residuals per cell (:mod:`fitstiff.diagnosis.gap`);
+3. **which**: score statistics of every candidate at its null
+   (:mod:`fitstiff.diagnosis.screen`), then held-out refits of the promising ones;
+4. **how far**: greedy acceptance by the rule of :mod:`fitstiff.diagnosis.select`; what stays
+   above the noise floor is reported as unexplained. Each candidate's detectability comes from
+   the first screen.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from collections.abc import Sequence
+
+import numpy as np
+
+from fitstiff.diagnosis.gap import above_floor, region_table
+from fitstiff.diagnosis.noise import noise_floor
+from fitstiff.diagnosis.result import Candidate, Diagnosis
+from fitstiff.diagnosis.screen import Score, screen
+from fitstiff.diagnosis.select import folds_for, held_out
+from fitstiff.diagnosis.supermodel import SuperProblem, candidate_names
+from fitstiff.errors import InputError
+from fitstiff.log import Log
+from fitstiff.terms import TERMS
+
+__all__ = ["diagnose", "ALPHA", "MIN_SHRINK"]
+
+#: family-wise level of the score screen (Bonferroni over the candidates)
+ALPHA = 0.05
+#: share of the gap above the noise floor an effect must remove on held-out data
+MIN_SHRINK = 0.3
+_MAX_REFITS = 3
+_MAX_ACCEPT = 4
+_IMPROVED = 0.95      # a region improved when its held-out RMS fell below 95 % of before
+_MAXWELL_SHAPE = (0.25, 0.5, 1.0, 2.0)   # slip displacements, multiples of Fc / sigma0
+
+
+def diagnose(logs: Sequence[Log], *, baseline: str = "chamber+dahl",
+             candidates: str | Sequence[str] = "all", alpha: float = ALPHA,
+             min_shrink: float = MIN_SHRINK, **problem_kw) -> Diagnosis:
+    """Diagnose the gap between ``baseline`` and the logs.
+
+    Args:
+        logs: loaded logs (two or more: leave-one-log-out; one: leave-one-block-of-loops-out).
+        baseline: the model spec whose gap is diagnosed.
+        candidates: ``"all"`` (every DESIGN §3 effect not in the baseline that applies) or
+            effect names (a list or a comma-separated string).
+        alpha: family-wise level of the score screen.
+        min_shrink: share of the gap above the noise that an accepted effect must remove.
+        problem_kw: options of :class:`~fitstiff.problem.Problem` (``denoise``,
+            ``sample_range``, ``weights``, ``skip``).
+
+    Returns:
+        The :class:`~fitstiff.diagnosis.result.Diagnosis`.
+    """
+    if not logs:
+        raise InputError(None, "logs", "none given", "name at least one CSV log")
+    if not (0 < alpha < 1):
+        raise InputError(None, f"--alpha {alpha}", "must lie strictly between 0 and 1",
+                         "give e.g. 0.05")
+    if not (0 <= min_shrink < 1):
+        raise InputError(None, f"--min-shrink {min_shrink}", "must lie in [0, 1)",
+                         "give e.g. 0.3")
+    clock = {"start": time.perf_counter()}
+    names, skipped = candidate_names(baseline, candidates, logs=logs)
+    sp = SuperProblem(logs, baseline, names, **problem_kw)
+    problem = sp.problem
+    folds = folds_for(sp)
+    masks = [w > 0 for w in problem.sample_weights]
+    noise = [noise_floor(log.force, mask=m) for log, m in zip(problem.logs, masks)]
+    counts = np.array([m.sum() for m in masks], dtype=float)
+    noise_pooled = math.sqrt(float(np.sum(counts * np.array([n.sigma**2 for n in noise]))
+                                   / counts.sum()))
+    weights = sp.entry_weights()
+    clock["setup"] = time.perf_counter()
+
+    active = list(sp.baseline_terms)
+    theta, hold = sp.start()
+    theta, base_ok, _, _ = sp.solve(theta, hold, sp.model_mask(active), sp.nuisance_mask(),
+                                    weights)
+    hold = _maxwell_shape(sp, theta, hold, active)
+    current = held_out(sp, folds, theta, hold, active)
+    baseline_heldout = current
+    clock["baseline"] = time.perf_counter()
+
+    first: dict[str, Score] = {}
+    decided: dict[str, Candidate] = {}
+    accepted: list[str] = []
+    m = len(names)
+    for round_ in range(1, _MAX_ACCEPT + 1):
+        remaining = [c for c in names if c not in accepted]
+        if not remaining:
+            break
+        scores, hold = screen(sp, theta, hold, active=active, candidates=remaining,
+                              noise=noise, weights=weights, alpha=alpha)
+        for s in scores:
+            first.setdefault(s.effect, s)
+        promising = sorted((s for s in scores if s.testable and s.p_value * m < alpha),
+                           key=lambda s: s.p_value)[:_MAX_REFITS]
+        tried = {}
+        for s in promising:
+            entries = sp.elements(s.effect)
+            hold_c = np.array(hold)
+            for name, value in s.one_step.items():
+                hold_c[problem.par.names.index(name)] = value
+            theta_c = sp.to_theta(theta, hold_c, entries)
+            ho = held_out(sp, folds, theta_c, hold_c, active, extra=entries)
+            gap = current.rms_N - noise_pooled
+            shrink = (current.rms_N - ho.rms_N) / gap if gap > 0 else float("nan")
+            passes = (ho.converged and ho.rms_N < current.rms_N
+                      and math.isfinite(shrink) and shrink >= min_shrink)
+            why = ("" if passes else "a refit did not converge" if not ho.converged
+                   else "held-out RMS did not fall" if ho.rms_N >= current.rms_N
+                   else f"removes only {shrink:.0%} of the gap above the noise "
+                        f"(needs {min_shrink:.0%})")
+            tried[s.effect] = (s, ho, shrink, passes, why, theta_c, hold_c)
+        for s in scores:
+            if s.effect in tried:
+                s_, ho, shrink, passes, why, _, _ = tried[s.effect]
+                decided[s.effect] = Candidate(
+                    effect=s.effect, score=s.statistic, dof=s.dof, p_value=s.p_value,
+                    testable=s.testable, heldout_rms_before_N=current.rms_N,
+                    heldout_rms_after_N=ho.rms_N, shrink=shrink, converged=ho.converged,
+                    regions_improved=_improved(sp, noise, masks, current, ho),
+                    parameters=_display(sp, s.one_step, "one_step"), round=round_,
+                    why=why)
+            else:
+                why = (s.reason and f"not testable: {s.reason}") or (
+                    f"score not significant (p = {s.p_value:.2g}, needs < {alpha / m:.2g})")
+                decided[s.effect] = Candidate(
+                    effect=s.effect, score=s.statistic, dof=s.dof, p_value=s.p_value,
+                    testable=s.testable, round=round_, why=why,
+                    parameters=_display(sp, s.one_step, "one_step"))
+        passing = [v for v in tried.values() if v[3]]
+        if not passing:
+            break
+        s, ho, shrink, _, _, theta_c, hold_c = min(passing, key=lambda v: v[1].rms_N)
+        active.append(s.effect)
+        theta, ok, _, _ = sp.solve(theta_c, hold_c, sp.model_mask(active),
+                                   sp.nuisance_mask(), weights)
+        hold = hold_c
+        x = np.asarray(sp.physical(theta, hold, sp.model_mask(active)))
+        values = {sp.owners[k].name: float(x[k]) for k in sp.elements(s.effect)}
+        decided[s.effect] = dataclasses.replace(decided[s.effect], accepted=True, why="",
+                                                parameters=_display(sp, values, "fit"))
+        accepted.append(s.effect)
+        current = ho
+    clock["select"] = time.perf_counter()
+
+    base_table = region_table(baseline_heldout.residuals, problem.segmentations, noise, masks)
+    final_table = region_table(current.residuals, problem.segmentations, noise, masks)
+    still = above_floor(final_table)
+    unexplained = tuple(_cell(row) for _, row in still.head(20).iterrows())
+    ranked = sorted(decided.values(), key=lambda c: (not c.accepted,
+                                                     accepted.index(c.effect) if c.accepted
+                                                     else 0, c.p_value))
+    detectability = {name: _detectability(first[name]) for name in names if name in first}
+    gap = {"heldout_rms_N": baseline_heldout.rms_N, "noise_N": noise_pooled,
+           "heldout_rms_per_log_N": list(baseline_heldout.rms_per_log_N),
+           "final_heldout_rms_N": current.rms_N,
+           "final_heldout_rms_per_log_N": list(current.rms_per_log_N),
+           "baseline_converged": bool(base_ok and baseline_heldout.converged),
+           "regions": _records(base_table), "final_regions": _records(final_table)}
+    clock["end"] = time.perf_counter()
+    verdict = _verdict(baseline, accepted, decided, gap, still, noise_pooled)
+    return Diagnosis(
+        baseline=baseline, final_model="+".join([baseline] + accepted), gap=gap,
+        candidates=tuple(ranked), accepted=tuple(accepted), unexplained=unexplained,
+        noise_N={log.name: nf.to_dict() for log, nf in zip(problem.logs, noise)},
+        detectability=detectability, skipped=skipped,
+        folds=tuple(f.describe([log.name for log in problem.logs]) for f in folds),
+        settings={"alpha": alpha, "min_shrink": min_shrink, "screen_level": alpha / m,
+                  "candidates": list(names)},
+        verdict=tuple(verdict),
+        files=tuple(str(log.path) if log.path else log.name for log in problem.logs),
+        timing_s={"setup": clock["setup"] - clock["start"],
+                  "baseline": clock["baseline"] - clock["setup"],
+                  "select": clock["select"] - clock["baseline"],
+                  "total": clock["end"] - clock["start"]})
+
+
+def _maxwell_shape(sp: SuperProblem, theta, hold, active) -> np.ndarray:
+    """Slip displacements of the Maxwell-slip candidate from the baseline's Fc / sigma0."""
+    entries = sp.elements("maxwell_slip", tested=False)
+    if entries.size == 0:
+        return hold
+    names = sp.problem.par.names
+    x = np.asarray(sp.physical(theta, hold, sp.model_mask(active)))
+    fc = next((x[names.index(n)] for n in ("Fc", "dahl.Fc", "lugre.Fc") if n in names), 18.0)
+    sigma0 = next((x[names.index(n)] for n in ("sigma0", "dahl.sigma0", "lugre.sigma0")
+                   if n in names), 40e3)
+    hold = np.array(hold)
+    hold[entries] = np.asarray(_MAXWELL_SHAPE) * fc / sigma0
+    return hold
+
+
+def _display(sp: SuperProblem, values, kind: str) -> dict[str, dict[str, object]]:
+    out = {}
+    for name, value in values.items():
+        k = sp.problem.par.names.index(name)
+        out[name] = {"value": value / sp.scales[k], "unit": sp.units[name], "kind": kind}
+    return out
+
+
+def _improved(sp, noise, masks, before, after) -> tuple[str, ...]:
+    """Motion regions whose held-out RMS fell below 95 % of before."""
+    out = []
+    for region in ("presliding", "sliding", "dwell", "standstill", "stroke_end"):
+        b = a = 0.0
+        n = 0
+        for i, seg in enumerate(sp.problem.segmentations):
+            if region not in seg.available_regions:
+                continue
+            keep = seg.mask(region) & masks[i]
+            b += float(np.sum(before.residuals[i][keep] ** 2))
+            a += float(np.sum(after.residuals[i][keep] ** 2))
+            n += int(keep.sum())
+        if n >= 10 and a < _IMPROVED**2 * b:
+            out.append(region)
+    return tuple(out)
+
+
+def _detectability(s: Score) -> dict[str, object]:
+    term = TERMS[s.effect]
+    if not s.testable:
+        return {"testable": False, "parameter": s.parameter, "reason": s.reason,
+                "record": term.excitation}
+    return {"testable": True, "parameter": s.parameter, "size": s.detectable / s.scale,
+            "unit": s.unit, "power": 0.8}
+
+
+def _cell(row) -> dict[str, object]:
+    return {"file": row["file"], "region": row["region"],
+            "pressure_bar": None if not np.isfinite(row["pressure_bar"]) else
+            float(row["pressure_bar"]), "direction": row["direction"],
+            "speed_band": row["speed_band"], "samples": int(row["samples"]),
+            "rms_N": float(row["rms_N"]), "excess_N": float(row["excess_N"]),
+            "bias_N": float(row["bias_N"]), "z_rms": float(row["z_rms"])}
+
+
+def _records(table) -> list[dict[str, object]]:
+    return [] if table.empty else [_cell(row) | {"share": float(row["share"]),
+                                                 "z_bias": float(row["z_bias"]),
+                                                 "noise_N": float(row["noise_N"])}
+                                   for _, row in table.iterrows()]
+
+
+def _verdict(baseline, accepted, decided, gap, still, noise) -> list[str]:
+    before, after = gap["heldout_rms_N"], gap["final_heldout_rms_N"]
+    lines = []
+    if not gap["baseline_converged"]:
+        lines.append(f"the baseline {baseline} did not converge on every fold: the diagnosis "
+                     "below rests on an unfinished fit")
+    if not accepted:
+        lines.append(f"no candidate passes the rule: held-out RMS {before:.3g} N against a "
+                     f"noise floor of {noise:.3g} N")
+    else:
+        total = max(before - noise, 1e-12)
+        parts = [f"{e} explains {decided[e].shrink:.0%} of the remaining gap"
+                 for e in accepted]
+        lines.append("; ".join(parts) + f" (held-out RMS {before:.3g} -> {after:.3g} N, "
+                     f"{(before - after) / total:.0%} of the gap above the noise floor "
+                     f"{noise:.3g} N)")
+    if still.empty:
+        lines.append("nothing stays above the noise floor")
+    else:
+        by_region = still.groupby("region")["excess_N"].max().sort_values(ascending=False)
+        lines.append("unexplained: " + ", ".join(
+            f"{excess:.2g} N above the noise in {region}" for region, excess in
+            by_region.items()))
+    return lines

@@ -1,0 +1,141 @@
+"""The result noun of the diagnosis: :class:`Diagnosis` (``diagnosis.json``, DESIGN §5)."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping, Sequence
+
+__all__ = ["Diagnosis", "Candidate"]
+
+
+@dataclasses.dataclass(frozen=True)
+class Candidate:
+    """One candidate effect: its screen, its held-out refit (if it was refitted) and the
+    verdict."""
+
+    effect: str
+    score: float
+    dof: int
+    p_value: float
+    testable: bool
+    heldout_rms_before_N: float | None = None
+    heldout_rms_after_N: float | None = None
+    shrink: float | None = None
+    accepted: bool = False
+    converged: bool | None = None
+    regions_improved: tuple[str, ...] = ()
+    parameters: Mapping[str, Mapping[str, float | str]] = dataclasses.field(
+        default_factory=dict)
+    round: int = 1
+    why: str = ""
+
+    def to_dict(self) -> dict[str, object]:
+        out = dataclasses.asdict(self)
+        out["regions_improved"] = list(self.regions_improved)
+        out["parameters"] = {k: dict(v) for k, v in self.parameters.items()}
+        return out
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, object]) -> Candidate:
+        fields = {f.name for f in dataclasses.fields(cls)}
+        kw = {k: v for k, v in data.items() if k in fields}
+        kw["regions_improved"] = tuple(kw.get("regions_improved", ()))
+        return cls(**kw)
+
+
+@dataclasses.dataclass(frozen=True)
+class Diagnosis:
+    """Where the baseline misses, which effect explains it, and how far the gap shrinks.
+
+    Attributes:
+        baseline: the baseline spec.
+        final_model: baseline plus the accepted effects, as a spec.
+        gap: ``heldout_rms_N`` (baseline), ``noise_N`` (pooled noise floor), ``regions``
+            (the baseline's held-out residual per cell, :mod:`fitstiff.diagnosis.gap`),
+            ``final_heldout_rms_N`` and ``final_regions`` (after the accepted effects).
+        candidates: every screened candidate, best-ranked first (accepted ones in the order
+            of acceptance).
+        accepted: accepted effect names, in order; empty when the baseline is adequate.
+        unexplained: cells still above the noise floor after the accepted effects.
+        noise_N: per log: the noise floor (``sigma_N``, ``rho``, ``method``).
+        detectability: per candidate: ``testable``, ``parameter``, ``size`` and ``unit`` of the
+            smallest effect detected at 80 % power, or ``reason`` and ``record``.
+        skipped: candidates that could not apply to this baseline, with why.
+        folds: how the data were held out.
+        settings: the acceptance rule's thresholds.
+        verdict: the findings in words.
+        files: the logs.
+    """
+
+    baseline: str
+    final_model: str
+    gap: Mapping[str, object]
+    candidates: tuple[Candidate, ...]
+    accepted: tuple[str, ...]
+    unexplained: tuple[Mapping[str, object], ...]
+    noise_N: Mapping[str, Mapping[str, object]]
+    detectability: Mapping[str, Mapping[str, object]]
+    skipped: Mapping[str, str]
+    folds: tuple[str, ...]
+    settings: Mapping[str, object]
+    verdict: tuple[str, ...]
+    files: tuple[str, ...]
+    timing_s: Mapping[str, float] = dataclasses.field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, object]:
+        return {
+            "baseline": self.baseline,
+            "final_model": self.final_model,
+            "gap": dict(self.gap),
+            "candidates": [c.to_dict() for c in self.candidates],
+            "accepted": list(self.accepted),
+            "unexplained": [dict(u) for u in self.unexplained],
+            "noise_N": {k: dict(v) for k, v in self.noise_N.items()},
+            "detectability": {k: dict(v) for k, v in self.detectability.items()},
+            "skipped": dict(self.skipped),
+            "folds": list(self.folds),
+            "settings": dict(self.settings),
+            "verdict": list(self.verdict),
+            "files": list(self.files),
+            "timing_s": dict(self.timing_s),
+        }
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, object]) -> Diagnosis:
+        """Read back what :meth:`to_dict` wrote (``diagnosis.json``)."""
+        return cls(
+            baseline=data["baseline"], final_model=data["final_model"], gap=data["gap"],
+            candidates=tuple(Candidate.from_dict(c) for c in data["candidates"]),
+            accepted=tuple(data["accepted"]),
+            unexplained=tuple(data["unexplained"]), noise_N=data["noise_N"],
+            detectability=data["detectability"], skipped=data.get("skipped", {}),
+            folds=tuple(data.get("folds", ())), settings=data.get("settings", {}),
+            verdict=tuple(data.get("verdict", ())), files=tuple(data.get("files", ())),
+            timing_s=data.get("timing_s", {}))
+
+    def candidate(self, effect: str) -> Candidate:
+        for c in self.candidates:
+            if c.effect == effect:
+                return c
+        raise KeyError(effect)
+
+    def summary(self) -> str:
+        """A readable summary for the terminal."""
+        lines = [f"diagnosis of {self.baseline}: " + ("accepted " + ", ".join(self.accepted)
+                                                      if self.accepted else
+                                                      "no effect accepted"),
+                 f"  held-out rms {self.gap['heldout_rms_N']:.4g} N -> "
+                 f"{self.gap['final_heldout_rms_N']:.4g} N; noise floor "
+                 f"{self.gap['noise_N']:.4g} N",
+                 f"  {'candidate':<18}{'score':>10}{'p':>10}{'before N':>10}{'after N':>10}"
+                 f"{'shrink':>8}  verdict"]
+        for c in self.candidates:
+            def f(v, fmt):
+                return "-" if v is None else format(v, fmt)
+            verdict = "ACCEPTED" if c.accepted else c.why
+            lines.append(f"  {c.effect:<18}{c.score:>10.3g}{c.p_value:>10.2g}"
+                         f"{f(c.heldout_rms_before_N, '.4g'):>10}"
+                         f"{f(c.heldout_rms_after_N, '.4g'):>10}{f(c.shrink, '.2f'):>8}  "
+                         f"{verdict}")
+        lines += [f"  {v}" for v in self.verdict]
+        return "\n".join(lines)

@@ -1,0 +1,212 @@
+"""Which effect: score (Lagrange-multiplier) statistics of every candidate at its null value.
+
+At the current model's least-squares fit, the residuals ``r`` and their Jacobian ``J`` are
+taken with respect to every model parameter **in physical coordinates** (several nulls sit on
+a bound of the transform layer, where the unconstrained derivative vanishes) and every
+nuisance, through the hysteresis scan (:meth:`SuperProblem.jacobian`). Both are filtered with
+each log's AR(1) noise coefficient (``e_t - rho e_{t-1}``, scaled to unit variance), so that
+under the null hypothesis the filtered residuals are white. With ``B`` the columns of the
+current model's free parameters and nuisances and ``G`` the candidate's tested columns,
+projected off ``B`` (``G_perp``, ``r_perp``):
+
+    g = G_perp^T r_perp,   I = G_perp^T G_perp,   LM = g^T I^+ g / s^2   ~ chi2(k)
+
+with ``s^2`` the filtered residual variance. A one-parameter effect whose null is a lower
+bound (``c >= 0``, ``mass >= 0``) is tested one-sided with ``z = -g / sqrt(I s^2)``. Shape
+parameters that the null leaves undetermined (Stribeck velocity, dwell growth time and decay
+travel) are scanned on a small grid; the p-value is Bonferroni-corrected over the grid.
+
+The same quantities give the **detectability**: along the candidate's main direction ``d``,
+the size ``(z_a + z_0.8) s / sqrt(d^T I d)`` is the effect that these logs would detect at
+80 % power with the screen's level ``a``; where ``G`` lies in the span of ``B`` (no pauses for
+dwell stiction, one pressure for pressure friction) the candidate is not testable.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+from scipy import stats
+
+from fitstiff.diagnosis.noise import NoiseFloor, noise_floor
+from fitstiff.diagnosis.supermodel import SuperProblem
+
+__all__ = ["Score", "screen", "SHAPE_GRIDS", "POWER"]
+
+POWER = 0.8
+#: shape parameters scanned by the screen (SI); the first value starts the model
+SHAPE_GRIDS: dict[str, dict[str, tuple[float, ...]]] = {
+    "stribeck": {"stribeck_vs": (0.5e-3, 2e-3, 8e-3)},
+    "dwell_stiction": {"dwell_tau": (0.3, 3.0), "dwell_decay": (0.1e-3, 0.5e-3)},
+}
+_COLLINEAR = 1e-6    # share of a candidate column left after projection: not testable
+
+
+@dataclasses.dataclass(frozen=True)
+class Score:
+    """The screen's verdict on one candidate."""
+
+    effect: str
+    statistic: float               # LM statistic (chi2 scale; z**2 for one-sided)
+    dof: int
+    p_value: float                 # after the grid correction
+    direction: float               # sign of the one-step estimate along the main direction
+    testable: bool
+    reason: str | None             # why not testable
+    detectable: float | None       # SI, along the main direction (see ``parameter``)
+    parameter: str                 # main parameter the detectable size refers to
+    unit: str
+    scale: float                   # SI per display unit
+    one_step: Mapping[str, float]  # SI start values of the candidate's parameters
+    shape: Mapping[str, float]     # shape values of the best grid point (SI)
+
+
+def _ar1_filter(a: np.ndarray, series, rhos) -> np.ndarray:
+    """Apply each series' AR(1) prewhitening along axis 0 (residuals or Jacobian columns)."""
+    out = np.array(a, dtype=float, copy=True)
+    for s, rho in zip(series, rhos):
+        if rho == 0.0:
+            continue
+        block = a[s.span]
+        filtered = (block[1:] - rho * block[:-1]) / math.sqrt(1.0 - rho**2)
+        out[s.span.start + 1:s.span.stop] = filtered
+    return out
+
+
+def series_rhos(sp: SuperProblem, noise: Sequence[NoiseFloor]) -> list[float]:
+    """AR(1) coefficient per residual series: the log's force noise, or its pressure noise."""
+    out = []
+    for s in sp.series:
+        if s.channel == "force":
+            out.append(min(max(noise[s.log].rho, 0.0), 0.95))
+        else:
+            log = sp.problem.logs[s.log]
+            p = log.pressure_a if s.channel == "pressure_a" else log.pressure_b
+            out.append(min(max(noise_floor(p).rho, 0.0), 0.95) if p is not None else 0.0)
+    return out
+
+
+def _orthonormal(b: np.ndarray) -> np.ndarray:
+    norms = np.linalg.norm(b, axis=0)
+    b = b[:, norms > 0] / norms[norms > 0]
+    if b.shape[1] == 0:
+        return b
+    u, sv, _ = np.linalg.svd(b, full_matrices=False)
+    return u[:, sv > 1e-10 * sv[0]]
+
+
+def screen(sp: SuperProblem, theta: np.ndarray, hold: np.ndarray, *, active: Sequence[str],
+           candidates: Sequence[str], noise: Sequence[NoiseFloor], weights: np.ndarray,
+           alpha: float) -> tuple[list[Score], np.ndarray]:
+    """Score every candidate at the current fit ``(theta, hold)`` of the ``active`` terms.
+
+    Returns the scores (in the order of ``candidates``) and ``hold`` with the shape values of
+    each candidate's best grid point (where the refit starts).
+    """
+    free_model = sp.model_mask(active)
+    hold = np.array(hold, dtype=float)
+    x = np.asarray(sp.physical(theta, hold, free_model))
+    rhos = series_rhos(sp, noise)
+    r, jac = sp.jacobian(x, theta)
+    w = np.asarray(weights)
+    keep = w > 0
+    rf = _ar1_filter(r * w, sp.series, rhos)[keep]
+    jf = _ar1_filter(jac * w[:, None], sp.series, rhos)[keep]
+    base_cols = np.concatenate([np.flatnonzero(free_model),
+                                sp.n_model + np.arange(sp.size - sp.n_model)])
+    q = _orthonormal(jf[:, base_cols])
+    r_perp = rf - q @ (q.T @ rf)
+    dof = max(rf.size - q.shape[1], 1)
+    s2 = float(r_perp @ r_perp) / dof
+    m = max(len(candidates), 1)
+    out = []
+    for effect in candidates:
+        tested = sp.elements(effect, tested=True)
+        grid = SHAPE_GRIDS.get(effect, {})
+        points = _grid_points(grid)
+        best = None
+        for point in points:
+            if point:
+                x_p = x.copy()
+                hold_p = hold.copy()
+                for name, value in point.items():
+                    k = sp.problem.par.names.index(name)
+                    x_p[k] = hold_p[k] = value
+                cols = []
+                for k in tested:
+                    tangent = np.zeros(sp.n_model)
+                    tangent[k] = 1.0
+                    _, col = sp.column(x_p, theta, tangent)
+                    cols.append(col)
+                g_cols = np.stack(cols, axis=1)
+            else:
+                g_cols = jac[:, tested]
+            gf = _ar1_filter(g_cols * w[:, None], sp.series, rhos)[keep]
+            score = _score(effect, sp, tested, gf, q, r_perp, s2, alpha / m, len(points))
+            score = dataclasses.replace(score, shape=point)
+            if best is None or score.p_value < best.p_value:
+                best = score
+        for name, value in best.shape.items():
+            hold[sp.problem.par.names.index(name)] = value
+        out.append(best)
+    return out, hold
+
+
+def _grid_points(grid: Mapping[str, Sequence[float]]) -> list[dict[str, float]]:
+    points: list[dict[str, float]] = [{}]
+    for name, values in grid.items():
+        points = [dict(p, **{name: v}) for p in points for v in values]
+    return points
+
+
+def _score(effect: str, sp: SuperProblem, tested: np.ndarray, g_cols: np.ndarray,
+           q: np.ndarray, r_perp: np.ndarray, s2: float, alpha: float,
+           n_grid: int) -> Score:
+    owners = [sp.owners[k] for k in tested]
+    main = owners[0].name.rsplit("_", 1)[0] if owners[0].name.endswith("_1") else owners[0].name
+    direction_vec = np.array([1.0 if (o.name == main or o.name.rsplit("_", 1)[0] == main)
+                              else 0.0 for o in owners])
+    scale = float(sp.scales[tested[0]])
+    unit = sp.units[owners[0].name]
+    g_perp = g_cols - q @ (q.T @ g_cols)
+    raw = np.linalg.norm(g_cols @ direction_vec)
+    left = np.linalg.norm(g_perp @ direction_vec)
+    lower_bounded = [sp.problem.par.entries[k].param.lower == sp.owners[k].null
+                     for k in tested]
+    if raw == 0 or left**2 < _COLLINEAR * raw**2 or s2 <= 0:
+        reason = ("the logs do not excite it (its effect on the force is zero)" if raw == 0
+                  else "with these logs it cannot be told apart from the baseline's parameters")
+        return Score(effect, 0.0, len(tested), 1.0, 0.0, False, reason, None, main, unit,
+                     scale, {}, {})
+    g = g_perp.T @ r_perp
+    info = g_perp.T @ g_perp
+    pinv = np.linalg.pinv(info, rcond=1e-10)
+    step = -pinv @ g                     # one Gauss-Newton step from the null (physical)
+    if len(tested) == 1 and lower_bounded[0]:
+        z = float(step[0] * math.sqrt(info[0, 0] / s2))
+        statistic, dof = z * abs(z), 1
+        p = float(stats.norm.sf(z))
+        z_a = stats.norm.isf(alpha)
+    else:
+        statistic = float(g @ pinv @ g / s2)
+        dof = int(np.linalg.matrix_rank(info))
+        p = float(stats.chi2.sf(statistic, dof))
+        z_a = stats.norm.isf(alpha / 2)
+    p = min(1.0, p * n_grid)
+    info_d = float(direction_vec @ info @ direction_vec) / s2
+    detectable = float((z_a + stats.norm.ppf(POWER)) / math.sqrt(info_d)
+                       * direction_vec.sum())
+    one_step = {}
+    for k, o, value in zip(tested, owners, step):
+        v = o.null + float(value)
+        lo = sp.problem.par.entries[k].param.lower
+        hi = sp.problem.par.entries[k].param.upper
+        tiny = 0.05 * detectable / max(direction_vec.sum(), 1.0)
+        one_step[o.name] = float(np.clip(v, lo + tiny if lo == o.null else lo,
+                                         hi - 1e-9 * abs(hi) if np.isfinite(hi) else np.inf))
+    sign = float(np.sign(direction_vec @ step))
+    return Score(effect, statistic, dof, p, sign, True, None, detectable, main, unit, scale,
+                 one_step, {})

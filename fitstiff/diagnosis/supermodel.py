@@ -1,0 +1,302 @@
+"""The baseline plus every candidate effect as one model, compiled once (DESIGN §6).
+
+Every candidate nests the baseline at a null value of its parameters (viscous ``c = 0``,
+Stribeck ratio 1, Maxwell-slip stiffnesses 0, the chamber's ``gate`` 0 for ``chamber:gated``),
+so the baseline, the baseline with any set of candidates and the full model are one
+:class:`~fitstiff.problem.Problem` whose free parameters are chosen by masks given at run
+time. Screens (score statistics) and refits (least squares on training folds, held-out
+predictions) all call the same compiled functions:
+
+- :meth:`SuperProblem.solve` - Levenberg-Marquardt over the entries of ``theta`` selected by
+  a mask, the others held; the model parameters that are not free take values from ``hold``
+  in physical (SI) units, so a candidate that is not in the model sits exactly at its null
+  (never at a transform's bound); residual entries are weighted by a run-time vector (a
+  held-out log or loop weighs 0);
+- :meth:`SuperProblem.jacobian` - residuals and their Jacobian with respect to every model
+  parameter in physical coordinates and every nuisance, the input of the score screen;
+- :meth:`SuperProblem.forces` - the predicted force of every log.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping, Sequence
+
+import equinox as eqx
+import numpy as np
+import optimistix as optx
+
+from fitstiff._jax import jax, jnp
+from fitstiff.errors import InputError
+from fitstiff.fitting import initial_guess, materialised_jacobian
+from fitstiff.log import Log
+from fitstiff.model import parse_spec
+from fitstiff.problem import Problem
+from fitstiff.terms import EFFECTS, FRICTION_BASES, TERMS
+
+__all__ = ["CANDIDATES", "SuperProblem", "candidate_names", "spec_token"]
+
+#: every effect the diagnosis can name (DESIGN §3), ``chamber`` for friction-only baselines
+CANDIDATES = EFFECTS + ("chamber",)
+_TOKENS = {"maxwell_slip": "maxwell_slip:4", "chamber": "chamber:gated",
+           "rig_compliance": "rig_compliance:measured"}
+_NEEDS_FRICTION = ("stribeck", "asymmetry", "pressure_friction", "dwell_stiction",
+                   "maxwell_slip")
+_NEEDS_CHAMBER = ("heat_transfer", "leakage")
+
+
+def spec_token(effect: str) -> str:
+    """The spec token that adds ``effect`` to a model as a candidate."""
+    return _TOKENS.get(effect, effect)
+
+
+def candidate_names(baseline: str, requested: str | Sequence[str] = "all", *,
+                    logs: Sequence[Log] = ()) -> tuple[list[str], dict[str, str]]:
+    """The candidates to screen on ``baseline`` and, for ``"all"``, those left out with why.
+
+    Explicitly requested candidates that cannot apply are an :class:`InputError` (unknown
+    name, already in the baseline, base missing, rig data missing); with ``"all"`` they are
+    left out and listed.
+    """
+    base = [name for name, _ in parse_spec(baseline)]
+    explicit = not (isinstance(requested, str) and requested == "all")
+    names = list(CANDIDATES) if not explicit else (
+        [n.strip() for n in requested.split(",") if n.strip()] if isinstance(requested, str)
+        else list(requested))
+    if explicit and not names:
+        raise InputError(None, "--candidates", "names no candidate",
+                         f"give 'all' or a comma-separated list of: {', '.join(CANDIDATES)}")
+    chosen, skipped = [], {}
+    for name in names:
+        if name not in CANDIDATES:
+            raise InputError(None, f"--candidates {name}", "is not a candidate effect",
+                             f"use 'all' or names from: {', '.join(CANDIDATES)}")
+        why = _not_applicable(name, base, logs)
+        if not explicit and name in base:
+            continue
+        if why is None:
+            chosen.append(name)
+        elif explicit:
+            raise InputError(None, f"--candidates {name}", why[0], why[1])
+        else:
+            skipped[name] = why[0]
+    if not chosen:
+        raise InputError(None, "--candidates", "no candidate applies to this baseline",
+                         "choose another baseline; skipped: "
+                         + "; ".join(f"{k}: {v}" for k, v in skipped.items()))
+    return chosen, skipped
+
+
+def _not_applicable(name: str, base: list[str], logs: Sequence[Log]):
+    friction = [b for b in base if b in FRICTION_BASES]
+    if name in base:
+        return (f"'{name}' is already in the baseline", f"drop it from --candidates or the "
+                "baseline")
+    if name == "maxwell_slip" and not friction:
+        return ("'maxwell_slip' tests non-local memory on a Dahl or LuGre baseline",
+                "add a friction base (dahl, lugre) to the baseline")
+    if name == "maxwell_slip" and friction != ["dahl"] and "lugre" not in friction:
+        return ("'maxwell_slip' as a candidate needs a Dahl or LuGre base",
+                "use a baseline with dahl or lugre")
+    if name in _NEEDS_FRICTION and not friction:
+        return (f"'{name}' modifies a friction base and the baseline has none",
+                "add a friction base (dahl, lugre, maxwell_slip, coulomb) to the baseline")
+    if name == "stribeck" and "lugre" in base:
+        return ("'lugre' already contains the Stribeck curve", "drop 'stribeck'")
+    if name in _NEEDS_CHAMBER and "chamber" not in base:
+        return (f"'{name}' modifies the chamber term and the baseline has none",
+                "add 'chamber' to the baseline")
+    if name in ("chamber", "pressure_friction") and logs:
+        for log in logs:
+            has_pressure = (log.rig.supply_pressure is not None or log.pressure_a is not None
+                            or log.pressure_b is not None)
+            if log.rig.bore is None or not has_pressure:
+                missing = "bore_mm" if log.rig.bore is None else "supply_bar or a pressure column"
+                return (f"'{name}' needs chamber pressures and the bore, and log "
+                        f"'{log.name}' has no {missing}",
+                        f"give {missing} (sidecar or --{missing.split()[0].replace('_', '-')})"
+                        " or leave the candidate out")
+        if name == "chamber" and not all(log.rig.stroke and log.rig.start_position is not None
+                                         for log in logs if log.pressure_a is None
+                                         or log.pressure_b is None):
+            return ("'chamber' needs stroke_mm and start_position_mm for closed chambers",
+                    "give them in the sidecars or leave the candidate out")
+    if name == "time_delay" and logs and any(log.time is None for log in logs):
+        return ("'time_delay' needs a time column in every log", "log time")
+    return None
+
+
+@dataclasses.dataclass(frozen=True)
+class Owner:
+    """Which term a parameter element belongs to and its role in the diagnosis."""
+
+    term: str            # the term's canonical name
+    name: str            # flat parameter name
+    tested: bool         # has a null value: the score tests it
+    null: float          # SI null value (NaN for shape parameters)
+
+
+class SuperProblem:
+    """The baseline and all candidates as one :class:`~fitstiff.problem.Problem`.
+
+    Args:
+        logs: the logs.
+        baseline: the baseline spec (``"chamber+dahl"``).
+        candidates: effect names (:func:`candidate_names`).
+        problem_kw: options of :class:`~fitstiff.problem.Problem` (denoise, sample_range, ...).
+    """
+
+    def __init__(self, logs: Sequence[Log], baseline: str, candidates: Sequence[str],
+                 **problem_kw):
+        self.baseline_terms = tuple(name for name, _ in parse_spec(baseline))
+        self.candidates = tuple(candidates)
+        spec = "+".join([baseline] + [spec_token(c) for c in candidates])
+        self.problem = Problem(logs, spec, **problem_kw)
+        par = self.problem.par
+        model = self.problem.model
+        nulls = par.nulls()
+        self.owners = tuple(Owner(model.terms[e.term_index].name, e.name,
+                                  e.param.null is not None
+                                  and model.terms[e.term_index].name not in self.baseline_terms,
+                                  float(nulls[k]))
+                            for k, e in enumerate(par.entries))
+        self.n_model = par.size
+        self.size = self.problem.size
+        self.scales = par.scales()
+        self.units = par.units()
+        self.series = self.problem.residual_series()
+        self.n_residuals = max(s.span.stop for s in self.series)
+        self._solve = _Solve(self.problem)
+        self._jac = jax.jit(self._jacobian_impl)
+        self._forces = jax.jit(self._forces_impl)
+        self._column = jax.jit(self._column_impl)
+
+    # -- masks ------------------------------------------------------------------------------
+    def model_mask(self, terms: Sequence[str]) -> np.ndarray:
+        """Model entries owned by ``terms`` (canonical term names)."""
+        return np.array([o.term in terms for o in self.owners])
+
+    def elements(self, effect: str, *, tested: bool | None = None) -> np.ndarray:
+        """Indices (into the model entries) of ``effect``'s parameters: all, or only the
+        tested (``True``) or shape (``False``) ones."""
+        return np.array([k for k, o in enumerate(self.owners) if o.term == effect
+                         and (tested is None or o.tested == tested)], dtype=int)
+
+    def nuisance_mask(self, logs: Sequence[int] | None = None) -> np.ndarray:
+        """Nuisance entries of ``logs`` (indices; all logs by default)."""
+        p = self.problem
+        keep = np.zeros(self.size - self.n_model, dtype=bool)
+        for j, _ in enumerate(p.nuisance_names):
+            for i in range(p.n_logs):
+                if logs is None or i in logs:
+                    keep[j * p.n_logs + i] = True
+        return keep
+
+    def entry_weights(self, *, logs: Sequence[int] | None = None,
+                      samples: Mapping[int, np.ndarray] | None = None) -> np.ndarray:
+        """Run-time weights of the residual entries: 1 on the given ``logs`` (all by default),
+        0 elsewhere; ``samples`` maps a log to a boolean per-sample mask to keep."""
+        w = np.zeros(self.n_residuals)
+        for s in self.series:
+            if logs is not None and s.log not in logs:
+                continue
+            keep = np.ones(s.span.stop - s.span.start)
+            if samples is not None and s.log in samples:
+                mask = np.asarray(samples[s.log], dtype=float)
+                keep[:mask.size] = mask
+                keep[mask.size:] = 0.0
+            w[s.span] = keep
+        return w
+
+    # -- starting point -----------------------------------------------------------------------
+    def start(self, values: Mapping[str, float] | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """``(theta, hold)``: the data-driven start of the baseline, candidates at their null
+        (shape parameters at their defaults) and ``values`` (SI, by flat name) on top."""
+        model0, nuis0 = initial_guess(self.problem, bases=self.baseline_terms)
+        theta = np.array(self.problem.pack(model0, nuis0), dtype=float)
+        hold = np.array(self.problem.par.physical(jnp.asarray(theta[:self.n_model])))
+        for k, o in enumerate(self.owners):
+            if o.tested:
+                hold[k] = o.null
+        for name, value in (values or {}).items():
+            hold[self.problem.par.names.index(name)] = value
+        return theta, hold
+
+    def to_theta(self, theta: np.ndarray, hold: np.ndarray, entries: np.ndarray) -> np.ndarray:
+        """``theta`` with the model ``entries`` set to the unconstrained image of ``hold``
+        (values on a bound are nudged inside by the transforms)."""
+        par = self.problem.par
+        model = par.physical_to_model(jnp.asarray(hold), self.problem.model)
+        y = np.asarray(par.to_unconstrained(model))
+        out = np.array(theta, dtype=float)
+        out[entries] = y[entries]
+        return out
+
+    # -- compiled functions ------------------------------------------------------------------
+    def physical(self, theta, hold, free_model):
+        return jnp.where(free_model, self.problem.par.physical(theta[:self.n_model]), hold)
+
+    def solve(self, theta0, hold, free_model, free_nuisance, weights, *, max_steps=200):
+        """Least squares over the free entries; returns ``(theta, converged, steps, cost)``."""
+        free = np.concatenate([free_model, free_nuisance])
+        theta, result, steps, cost = self._solve(
+            jnp.asarray(theta0), jnp.asarray(hold), jnp.asarray(free_model),
+            jnp.asarray(free), jnp.asarray(weights), max_steps)
+        ok = bool(result == optx.RESULTS.successful) and bool(np.isfinite(cost))
+        return np.asarray(theta), ok, int(steps), float(cost)
+
+    def _jacobian_impl(self, x, theta):
+        def f(x, nuis):
+            th = jnp.concatenate([theta[:self.n_model], nuis])
+            return self.problem.residuals_physical(x, th)
+
+        nuis = theta[self.n_model:]
+        r = f(x, nuis)
+        jx, jn = jax.jacfwd(f, argnums=(0, 1))(x, nuis)
+        return r, jnp.concatenate([jx, jn], axis=1)
+
+    def jacobian(self, x, theta) -> tuple[np.ndarray, np.ndarray]:
+        """Residuals and ``d residuals / d (x, nuisances)`` at physical model values ``x``."""
+        r, j = self._jac(jnp.asarray(x), jnp.asarray(theta))
+        return np.asarray(r), np.asarray(j)
+
+    def _column_impl(self, x, theta, tangent):
+        return jax.jvp(lambda x: self.problem.residuals_physical(x, theta), (x,), (tangent,))
+
+    def column(self, x, theta, tangent) -> tuple[np.ndarray, np.ndarray]:
+        """Residuals and their derivative along one physical ``tangent`` (one JVP)."""
+        r, c = self._column(jnp.asarray(x), jnp.asarray(theta), jnp.asarray(tangent))
+        return np.asarray(r), np.asarray(c)
+
+    def _forces_impl(self, x, theta):
+        p = self.problem
+        model = p.par.physical_to_model(x, p.model)
+        return [pred.force for pred in p.model_predictions(model, p.nuisances(theta))]
+
+    def forces(self, x, theta) -> list[np.ndarray]:
+        """Predicted force (N) of every log, unpadded, in log order."""
+        return self.problem.unpad(self._forces(jnp.asarray(x), jnp.asarray(theta)))
+
+
+class _Solve(eqx.Module):
+    """One compiled masked least-squares solve for a super-problem."""
+
+    problem: Problem = eqx.field(static=True)
+
+    @eqx.filter_jit
+    def __call__(self, theta0, hold, free_model, free, weights, max_steps):
+        p = self.problem
+        n_model = p.par.size
+
+        def residuals(theta):
+            theta = jnp.where(free, theta, theta0)
+            x = jnp.where(free_model, p.par.physical(theta[:n_model]), hold)
+            return p.residuals_physical(x, theta) * weights
+
+        wrapped = materialised_jacobian(residuals)
+        solver = optx.LevenbergMarquardt(rtol=1e-6, atol=1e-6)
+        sol = optx.least_squares(lambda th, _: wrapped(th), solver, theta0,
+                                 max_steps=max_steps, throw=False)
+        theta = jnp.where(free, sol.value, theta0)
+        r = residuals(theta)
+        return theta, sol.result, sol.stats["num_steps"], jnp.sum(r**2)

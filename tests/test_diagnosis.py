@@ -1,0 +1,212 @@
+"""The sim-to-real gap diagnosis: noise floor, physical-coordinates path, the one super-model,
+bad input, and withheld effects found (or nothing found on a null)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from fitstiff._jax import jax, jnp
+from fitstiff.diagnosis.noise import noise_floor
+from fitstiff.errors import InputError
+from fitstiff.log import Rig
+from fitstiff.model import build_model
+from fitstiff.params import Parameterization
+from fitstiff.programs import TriangleCycles
+from fitstiff.simulate import Noise, simulate
+
+RIG = Rig(bore=0.032, rod=0.0, stroke=0.7, start_position=0.35, supply_pressure=6e5)
+
+
+def _force_like(n: int, fs: float = 200.0) -> np.ndarray:
+    """A smooth hysteresis-like force signal (saturating branches, a slow chamber term)."""
+    t = np.arange(n) / fs
+    return 18.0 * np.tanh(5.0 * np.sin(2 * np.pi * 0.2 * t)) + 3.0 * np.sin(t)
+
+
+@pytest.mark.parametrize("rho", [0.0, 0.5])
+def test_noise_floor_recovers_white_and_ar1_noise_within_10_percent(rho):
+    rng = np.random.default_rng(11)
+    signal = _force_like(8000)
+    for _ in range(10):
+        e = Noise(ar1=rho).draw(rng, signal.size, 0.2)
+        nf = noise_floor(signal + e)
+        assert nf.sigma == pytest.approx(0.2, rel=0.10)
+        assert nf.rho == pytest.approx(rho, abs=0.1)
+        assert not nf.capped
+
+
+def test_noise_floor_ignores_a_misfit_the_model_would_leave():
+    """The estimate comes from the data alone: a smooth 3 N signal the model might miss does
+    not raise it."""
+    rng = np.random.default_rng(2)
+    signal = _force_like(6000)
+    e = rng.normal(0, 0.2, signal.size)
+    plain = noise_floor(signal + e).sigma
+    with_misfit = noise_floor(signal + e + 3.0 * np.sin(np.arange(6000) / 50.0)).sigma
+    assert with_misfit == pytest.approx(plain, rel=0.02)
+
+
+def test_physical_path_equals_the_transform_and_differentiates_at_bound_nulls():
+    model = build_model("dahl+viscous+stribeck")
+    par = Parameterization(model)
+    y = par.to_unconstrained(model)
+    a = par.to_model(y, model)
+    b = par.physical_to_model(par.physical(y), model)
+    for ta, tb in zip(a.terms, b.terms):
+        for f in ("sigma0", "Fc", "c", "stribeck_ratio", "stribeck_vs"):
+            if hasattr(ta, f):
+                assert float(getattr(ta, f)) == pytest.approx(float(getattr(tb, f)), rel=1e-12)
+    # at the nulls c = 0 and ratio = 1 (lower bounds): the unconstrained derivative of the
+    # physical value vanishes, the physical path's does not
+    nulls = par.nulls()
+    x = np.array(par.physical(y))
+    for name in ("c", "stribeck_ratio"):
+        x[par.names.index(name)] = nulls[par.names.index(name)]
+    model0 = par.physical_to_model(jnp.asarray(x), model)
+    y0 = par.to_unconstrained(model0)
+    k = par.names.index("c")
+    assert float(jax.jacfwd(par.physical)(y0)[k, k]) < 1e-9
+    sim = simulate("dahl", TriangleCycles(amplitudes_mm=(0.5, 1.0), rate_mm_s=5.0),
+                   rig=RIG, rate_hz=500.0, noise=Noise(force_N=0, displacement_um=0))
+    drive = sim.drive
+
+    def total(xv):
+        return jnp.sum(par.physical_to_model(xv, model).predict(drive) ** 2)
+
+    grad = jax.grad(total)(jnp.asarray(x))
+    assert abs(float(grad[k])) > 1.0
+
+
+def _logs(spec, params, *, rates=(2.0, 10.0), seed=0, amplitudes=(0.3, 1.0)):
+    out = []
+    for j, rate in enumerate(rates):
+        sim = simulate(spec, TriangleCycles(amplitudes_mm=amplitudes, rate_mm_s=rate, cycles=1),
+                       rig=RIG, params=params, rate_hz=200.0 if rate < 5 else 500.0,
+                       seed=seed + j, name=f"log{j}",
+                       noise=Noise(force_N=0.2, displacement_um=0.5, pressure_mbar=2.0))
+        out.append(sim.log)
+    return out
+
+
+def test_super_model_at_its_nulls_is_the_baseline():
+    """Every candidate at its null: the super-model's residuals equal the baseline's."""
+    from fitstiff.diagnosis.supermodel import SuperProblem, candidate_names
+    from fitstiff.problem import Problem
+
+    logs = _logs("chamber+dahl", {"n": 1.4, "sigma0": 40, "Fc": 18})
+    names, skipped = candidate_names("chamber+dahl", "all", logs=logs)
+    assert "chamber" not in names and set(names) == {
+        "viscous", "stribeck", "asymmetry", "pressure_friction", "dwell_stiction",
+        "heat_transfer", "leakage", "inertia", "force_drift", "time_delay", "rig_compliance",
+        "maxwell_slip"}
+    sp = SuperProblem(logs, "chamber+dahl", names)
+    theta, hold = sp.start()
+    base = Problem(logs, "chamber+dahl")
+    free = sp.model_mask(sp.baseline_terms)
+    x = np.asarray(sp.physical(theta, hold, free))
+    r_super = np.asarray(sp.problem.residuals_physical(jnp.asarray(x), jnp.asarray(theta)))
+    b_theta = np.concatenate([np.asarray(theta)[:sp.n_model][free],
+                              np.asarray(theta)[sp.n_model:]])
+    r_base = np.asarray(base.residuals(jnp.asarray(b_theta)))
+    assert r_super.shape == r_base.shape
+    # rig_compliance (measured-force form, compliance 0) and the rest at their nulls
+    np.testing.assert_allclose(r_super, r_base, rtol=1e-9, atol=1e-9)
+
+
+@pytest.mark.parametrize("candidates, message", [
+    ("viscous,nonsense", "is not a candidate effect"),
+    ("dahl", "is not a candidate effect"),
+    ("chamber", "is already in the baseline"),
+])
+def test_bad_candidates_are_input_errors(candidates, message):
+    from fitstiff.diagnosis.supermodel import candidate_names
+
+    with pytest.raises(InputError, match=message):
+        candidate_names("chamber+dahl", candidates)
+
+
+def test_a_candidate_whose_base_is_missing_is_an_input_error():
+    from fitstiff.diagnosis.supermodel import candidate_names
+
+    with pytest.raises(InputError, match="modifies a friction base"):
+        candidate_names("chamber", "stribeck")
+    with pytest.raises(InputError, match="modifies the chamber term"):
+        candidate_names("dahl", "heat_transfer")
+    names, skipped = candidate_names("dahl", "all")
+    assert "chamber" in names and "heat_transfer" in skipped
+
+
+def test_pressure_candidates_without_pressures_are_refused():
+    from fitstiff.diagnosis.supermodel import candidate_names
+    from fitstiff.log import Log
+
+    log = Log(name="bare", displacement=np.linspace(0, 1e-3, 50), force=np.zeros(50),
+              time=np.arange(50) / 100.0, rig=Rig())
+    with pytest.raises(InputError, match="needs chamber pressures"):
+        candidate_names("dahl", "pressure_friction", logs=[log])
+    names, skipped = candidate_names("dahl", "all", logs=[log])
+    assert "pressure_friction" in skipped and "chamber" in skipped
+
+
+def test_a_single_log_without_two_loops_cannot_be_held_out():
+    from fitstiff.diagnosis import diagnose
+
+    sim = simulate("dahl", TriangleCycles(amplitudes_mm=(0.5,), rate_mm_s=2.0), rig=RIG,
+                   rate_hz=100.0)
+    with pytest.raises(InputError, match="too short to hold out a loop"):
+        diagnose([sim.log], baseline="dahl", candidates="viscous")
+
+
+def test_withheld_viscous_is_found_and_named(tmp_path):
+    """Two logs at 2 and 10 mm/s with viscous friction the baseline lacks: viscous ranks
+    first, is accepted and removes most of the held-out gap; the CLI writes diagnosis.json
+    with the DESIGN §5 keys."""
+    from fitstiff.simulate import write_log
+
+    logs = _logs("chamber+dahl+viscous", {"n": 1.4, "sigma0": 40, "Fc": 18, "c": 150})
+    paths = []
+    (tmp_path / "in").mkdir()
+    for log in logs:
+        path = tmp_path / "in" / f"{log.name}.csv"
+        write_log(log, path)
+        paths.append(str(path))
+    out = tmp_path / "out"
+    proc = subprocess.run([sys.executable, "-m", "fitstiff", "diagnose", *paths,
+                           "--candidates", "viscous,asymmetry,force_drift",
+                           "--out", str(out)], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    data = json.loads((out / "diagnosis.json").read_text())
+    for key in ("baseline", "gap", "candidates", "accepted", "unexplained", "noise_N",
+                "detectability"):
+        assert key in data
+    for key in ("heldout_rms_N", "noise_N", "regions"):
+        assert key in data["gap"]
+    for c in data["candidates"]:
+        for key in ("effect", "score", "heldout_rms_before_N", "heldout_rms_after_N",
+                    "shrink", "accepted", "regions_improved"):
+            assert key in c
+    assert data["accepted"] == ["viscous"]
+    first = data["candidates"][0]
+    assert first["effect"] == "viscous" and first["shrink"] > 0.8
+    assert data["detectability"]["viscous"]["unit"] == "N s/m"
+    assert 0 < data["detectability"]["viscous"]["size"] < 150
+    from fitstiff.diagnosis import Diagnosis
+
+    again = Diagnosis.from_dict(data)
+    assert again.accepted == ("viscous",) and again.candidate("viscous").accepted
+
+
+def test_nothing_is_accepted_without_a_missing_effect():
+    from fitstiff.diagnosis import diagnose
+
+    logs = _logs("chamber+dahl", {"n": 1.4, "sigma0": 40, "Fc": 18}, seed=5)
+    result = diagnose(logs, baseline="chamber+dahl",
+                      candidates="viscous,asymmetry,force_drift")
+    assert result.accepted == ()
+    assert result.gap["final_heldout_rms_N"] == result.gap["heldout_rms_N"]
+    assert result.gap["heldout_rms_N"] < 1.3 * result.gap["noise_N"]
