@@ -59,7 +59,9 @@ __all__ = [
     "plot_autocorr",
     "plot_contributions_over_stroke",
     "plot_corner",
+    "plot_gap_heatmap",
     "plot_loop",
+    "plot_residual_signature",
     "plot_residuals",
     "plot_trace",
     "reversal_zoom_window",
@@ -533,6 +535,68 @@ def plot_autocorr(ax: Axes, chain: ArrayLike, name: str, *, points: int = 12) ->
 
 
 # -- checks ---------------------------------------------------------------------------------------
+def plot_gap_heatmap(ax: Axes, table, *, label: str = "z-score of the RMS against the noise",
+                     limit: float = 30.0) -> Axes:
+    """Region x log heat map of a held-out misfit table (rows regions, columns logs, as
+    :func:`fitstiff.diagnosis.gap.region_summary` returns); cells are annotated with their
+    value, blank where the log has no such samples. The colour scale is clipped at
+    ``limit``; 3 (the diagnosis's threshold) sits near the bottom."""
+    values = np.asarray(table.to_numpy(), dtype=float)
+    if values.ndim != 2 or values.size == 0:
+        raise InputError(None, "gap table", f"has shape {values.shape}",
+                         "give a region x log table")
+    shown = np.ma.masked_invalid(np.clip(values, 0.0, limit))
+    image = ax.imshow(shown, cmap="Reds", vmin=0.0, vmax=limit, aspect="auto")
+    ax.set_xticks(range(values.shape[1]), [str(c) for c in table.columns], rotation=30,
+                  ha="right")
+    ax.set_yticks(range(values.shape[0]), [str(r) for r in table.index])
+    for (i, j), v in np.ndenumerate(values):
+        if np.isfinite(v):
+            ax.text(j, i, f"{v:.3g}", ha="center", va="center", fontsize=8,
+                    color="white" if min(max(v, 0), limit) > 0.6 * limit else "black")
+    ax.figure.colorbar(image, ax=ax, label=label)
+    return ax
+
+
+def plot_residual_signature(ax: Axes, x: ArrayLike, before: ArrayLike, after: ArrayLike | None,
+                            *, xlabel: str, bins: int = 30) -> Axes:
+    """Held-out residual against one variable (displacement since reversal, velocity,
+    pressure, position, time): the samples faint, the binned mean and +-1 sd of the residual
+    before (and after) the accepted effects. A trend or a step is an effect's signature."""
+    x = np.asarray(x, dtype=float)
+    before = np.asarray(before, dtype=float)
+    if x.shape != before.shape or (after is not None and np.shape(after) != x.shape):
+        raise InputError(None, "residual signature", f"arrays of shapes {x.shape}, "
+                         f"{before.shape}, {np.shape(after)}", "give arrays of one length")
+    ok = np.isfinite(x)
+    series = [("before", before, "tab:red")]
+    if after is not None:
+        series.append(("after", np.asarray(after, dtype=float), "tab:blue"))
+    edges = np.quantile(x[ok], np.linspace(0, 1, bins + 1)) if ok.any() else np.zeros(2)
+    edges = np.unique(edges)
+    for name, r, color in series:
+        ax.plot(x[ok], r[ok], ".", ms=1.5, alpha=0.15, color=color, rasterized=True)
+        if edges.size < 2:
+            continue
+        idx = np.clip(np.searchsorted(edges, x[ok], side="right") - 1, 0, edges.size - 2)
+        counts = np.bincount(idx, minlength=edges.size - 1)
+        keep = counts > 2
+        mean = np.bincount(idx, r[ok], minlength=edges.size - 1)[keep] / counts[keep]
+        sq = np.bincount(idx, r[ok] ** 2, minlength=edges.size - 1)[keep] / counts[keep]
+        sd = np.sqrt(np.clip(sq - mean**2, 0, None))
+        centre = 0.5 * (edges[:-1] + edges[1:])[keep]
+        ax.plot(centre, mean, "-", color=color, lw=1.8, label=f"{name}: binned mean")
+        ax.fill_between(centre, mean - sd, mean + sd, color=color, alpha=0.15, lw=0)
+    ax.axhline(0.0, color="0.3", lw=0.8)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel("held-out residual (N)")
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(loc="upper right", fontsize=8)
+    else:
+        ax.set_title("one value only: no trend to show", fontsize=9)
+    return ax
+
+
 def _per_sample(values: ArrayLike, log: Log, what: str) -> np.ndarray:
     a = np.asarray(values, dtype=float)
     if a.shape != (len(log),):

@@ -70,7 +70,8 @@ REPORT = "report.html"
 FIGURES = "figures"
 MANIFEST = "manifest.json"
 REPORT_MANIFEST = "report.manifest.json"
-RESULT_FILES: Mapping[str, str] = {"posterior": "posterior.json", "fit": "fit.json"}
+RESULT_FILES: Mapping[str, str] = {"posterior": "posterior.json", "fit": "fit.json",
+                                   "diagnosis": "diagnosis.json"}
 """Report kind -> the result file that makes a directory one of that kind (checked in order)."""
 
 _Z90 = 1.6448536269514722       # two-sided 90 % of a standard normal
@@ -93,16 +94,20 @@ class RunDirectory:
         kind: a key of :data:`RESULT_FILES`.
         result: the result file's content (``fit.json`` / ``posterior.json``).
         manifest: the run's ``manifest.json``.
-        problem: the rebuilt problem (re-read logs, recorded model and options).
+        problem: the rebuilt problem (re-read logs, recorded model and options); ``None`` for
+            a diagnosis (which compares several models: its page works from the logs and the
+            held-out residuals it kept).
         inputs: the manifest's input files, each ``(path, sha256)``, all verified.
+        logs: the re-read logs.
     """
 
     path: Path
     kind: str
     result: Mapping[str, Any]
     manifest: Mapping[str, Any]
-    problem: Problem
+    problem: Problem | None
     inputs: tuple[tuple[Path, str], ...]
+    logs: tuple[Log, ...] = ()
 
     @property
     def result_file(self) -> Path:
@@ -124,7 +129,7 @@ def open_run(directory: str | Path) -> RunDirectory:
     if kind is None:
         raise InputError(str(path), "report directory",
                          f"holds none of {', '.join(RESULT_FILES.values())}",
-                         "give the --out directory of fitstiff fit or fitstiff posterior")
+                         "give the --out directory of fitstiff fit, posterior or diagnose")
     name = RESULT_FILES[kind]
     result = _read_json(path / name)
     manifest = _read_json(path / MANIFEST, missing="the run did not finish; run it again")
@@ -139,8 +144,9 @@ def open_run(directory: str | Path) -> RunDirectory:
     options = manifest.get("options", {})
     logs = _reread([str(started / f) for f in result["files"]], options,
                    manifest=path / MANIFEST)
+    problem = None if kind == "diagnosis" else _problem(logs, result, options)
     return RunDirectory(path=path, kind=kind, result=result, manifest=manifest,
-                        problem=_problem(logs, result, options), inputs=inputs)
+                        problem=problem, inputs=inputs, logs=tuple(logs))
 
 
 def _reread(files: Sequence[str], options: Mapping[str, Any], *, manifest: Path) -> list[Log]:
@@ -677,6 +683,7 @@ class _Report:
     verdict: _Verdict
     summary: str                       # HTML
     sections: tuple[_Section, ...]
+    summary_title: str = "Estimates"
 
 
 def _fit_report(run: RunDirectory, *, draws: int) -> _Report:
@@ -719,8 +726,188 @@ def _posterior_report(run: RunDirectory, *, draws: int) -> _Report:
                    _posterior_verdict(run.result, rms), summary, tuple(sections))
 
 
+def _diagnosis_report(run: RunDirectory, *, draws: int) -> _Report:
+    """The diagnosis page: verdict, gap heat maps, candidate and detectability tables,
+    residual signatures and loops before / after the accepted effects."""
+    del draws
+    from fitstiff.diagnosis import HELDOUT, Diagnosis
+    from fitstiff.diagnosis.gap import region_summary
+    from fitstiff.diagnosis.noise import NoiseFloor
+    from fitstiff.segmentation import segment
+
+    result = Diagnosis.from_dict(run.result)
+    logs = run.logs
+    try:
+        with np.load(run.path / HELDOUT) as arrays:
+            heldout = Diagnosis.heldout_from_arrays(dict(arrays), len(logs))
+    except (OSError, KeyError, ValueError) as exc:
+        raise InputError(str(run.path / HELDOUT), "held-out residuals of the diagnosis",
+                         f"cannot be read ({exc})", "run fitstiff diagnose again") from None
+    for which, residuals in heldout.items():
+        for log, r in zip(logs, residuals):
+            if r.shape != (len(log),):
+                raise InputError(str(run.path / HELDOUT), f"{which} residuals of {log.name}",
+                                 f"have {r.shape[0]} samples, the log {len(log)}",
+                                 "run fitstiff diagnose again")
+    segs = [segment(log) for log in logs]
+    noise = [NoiseFloor(float(result.noise_N[log.name]["sigma_N"]),
+                        float(result.noise_N[log.name]["rho"])) for log in logs]
+    masks = _diagnosis_masks(run)
+    before, after = heldout["before"], heldout["after"]
+    changed = bool(result.accepted)
+
+    fig = Figure(figsize=(12, 3.6 + 0.3 * len(logs)), layout="constrained")
+    axes = fig.subplots(1, 2 if changed else 1, squeeze=False)[0]
+    plotting.plot_gap_heatmap(axes[0], region_summary(before, segs, noise, masks))
+    axes[0].set_title(f"baseline {result.baseline}")
+    if changed:
+        plotting.plot_gap_heatmap(axes[1], region_summary(after, segs, noise, masks))
+        axes[1].set_title(f"with {', '.join(result.accepted)}")
+    heat = ReportFigure("gap_heatmap", "Held-out misfit per region and log: z-score of the "
+                        "residual's mean square against the log's noise floor (3 or more: "
+                        "above the noise; blank: no such samples)"
+                        + (", before and after the accepted effects." if changed else "."),
+                        fig)
+    signature = _signature_figure(logs, segs, before, after if changed else None, masks)
+    loops = tuple(_diagnosis_loop(log, b, a if changed else None, result, i)
+                  for i, (log, b, a) in enumerate(zip(logs, before, after)))
+    gap = result.gap
+    summary = (_diagnosis_tables(result)
+               + _p(f"Held-out RMS of the baseline {gap['heldout_rms_N']:.3g} N, of "
+                    f"{result.final_model} {gap['final_heldout_rms_N']:.3g} N; noise floor "
+                    f"{gap['noise_N']:.3g} N (from the data alone). Folds: "
+                    + "; ".join(result.folds) + "."))
+    sections = [
+        _Section("Where the baseline misses", figures=(heat,)),
+        _Section("Residual signatures", figures=(signature,)),
+        _Section("Loops", figures=loops),
+    ]
+    return _Report(f"Diagnosis: {result.baseline}", _diagnosis_verdict(result), summary,
+                   tuple(sections), summary_title="Candidate effects")
+
+
+def _diagnosis_masks(run: RunDirectory) -> list[np.ndarray]:
+    options = run.manifest.get("options", {})
+    out = []
+    for log in run.logs:
+        keep = np.ones(len(log), dtype=bool)
+        if options.get("sample_range") is not None:
+            start, stop = options["sample_range"]
+            keep[:] = False
+            keep[slice(start, stop)] = True
+        keep[:int(options.get("skip") or 0)] = False
+        out.append(keep)
+    return out
+
+
+def _signature_figure(logs, segs, before, after, masks) -> ReportFigure:
+    since, velocity, pressure, position, time = [], [], [], [], []
+    for log, seg in zip(logs, segs):
+        x = np.asarray(log.displacement)
+        origin = np.concatenate([[0], seg.reversals])
+        last = origin[np.searchsorted(origin, np.arange(len(log)), side="right") - 1]
+        since.append(np.abs(x - x[last]) / MM)
+        velocity.append((seg.velocity if seg.velocity is not None
+                         else np.full(len(log), np.nan)) / MM)
+        level = seg.pressure_level
+        pressure.append(np.full(len(log), np.nan if level is None else level / 1e5))
+        start = log.rig.start_position
+        position.append((x + (start if start is not None else 0.0)) / MM)
+        time.append(np.asarray(log.time) if log.time is not None
+                    else np.full(len(log), np.nan))
+    keep = np.concatenate(masks)
+    b = np.concatenate(before)[keep]
+    a = None if after is None else np.concatenate(after)[keep]
+    panels = [(since, "displacement since the last reversal (mm)"),
+              (velocity, "velocity (mm/s)"), (pressure, "pressure level (bar gauge)"),
+              (position, "position (mm)"), (time, "time (s)")]
+    fig = Figure(figsize=(12, 7.0), layout="constrained")
+    axes = fig.subplots(2, 3).ravel()
+    for ax, (values, label) in zip(axes, panels):
+        v = np.concatenate(values)[keep]
+        if not np.any(np.isfinite(v)):
+            ax.set_axis_off()
+            ax.text(0.5, 0.5, f"no {label.split(' (')[0]} in these logs", ha="center",
+                    transform=ax.transAxes)
+            continue
+        plotting.plot_residual_signature(ax, v, b, a, xlabel=label)
+    axes[-1].set_axis_off()
+    caption = ("Held-out residuals (model - measured) of every log against the variables that "
+               "reveal effects: displacement since the last reversal (pre-sliding shape, "
+               "memory), velocity (viscous, Stribeck), pressure level (pressure-dependent "
+               "friction), position (stroke ends, chamber), time (drift, leakage). Red: "
+               "baseline" + ("; blue: with the accepted effects" if after is not None else "")
+               + "; lines: binned mean, bands: +-1 sd.")
+    return ReportFigure("residual_signatures", caption, fig)
+
+
+def _diagnosis_loop(log, before, after, result, i) -> ReportFigure:
+    fig = Figure(figsize=(12, 4.2), layout="constrained")
+    axes = fig.subplots(1, 2 if after is not None else 1, squeeze=False)[0]
+    force = np.asarray(log.force)
+    plotting.plot_loop(axes[0], log, force + before, label=f"{result.baseline} (held out)")
+    axes[0].set_title(f"{log.name}: baseline")
+    if after is not None:
+        plotting.plot_loop(axes[1], log, force + after,
+                           label=f"{result.final_model} (held out)")
+        axes[1].set_title(f"{log.name}: with {', '.join(result.accepted)}")
+    caption = (f"{log.name}: measured force and the held-out prediction (fitted without this "
+               "log or this block of loops) of the baseline"
+               + (" and of the model with the accepted effects." if after is not None else "."))
+    return ReportFigure(f"diagnosis_loop_{_file_stem(log.name)}", caption, fig)
+
+
+def _diagnosis_tables(result) -> str:
+    rows = []
+    for c in result.candidates:
+        det = result.detectability.get(c.effect, {})
+        detect = (f"{det['size']:.3g} {det['unit']} ({det['parameter']})" if det.get("testable")
+                  else "not testable")
+        rows.append([c.effect, _fmt(c.score, 4), _fmt(c.p_value, 2),
+                     _fmt(c.heldout_rms_before_N, 4), _fmt(c.heldout_rms_after_N, 4),
+                     _fmt(c.shrink, 2), "yes" if c.accepted else "no",
+                     ", ".join(c.regions_improved) or "-", detect,
+                     "" if c.accepted else c.why])
+    table = _table(["candidate", "score", "p", "held-out before N", "held-out after N",
+                    "shrink", "accepted", "regions improved", "detectable at 80 %", "why not"],
+                   rows, numeric_from=1)
+    untestable = [f"{e}: {d['reason']}; record {d['record']}"
+                  for e, d in result.detectability.items() if not d.get("testable")]
+    skipped = [f"{e}: {why}" for e, why in result.skipped.items()]
+    return (table
+            + _p("Score: the Lagrange-multiplier statistic of the effect at its null value "
+                 "(z squared, signed, for one-sided effects); p after the grid correction; "
+                 "the screen's level is alpha / number of candidates = "
+                 f"{result.settings.get('screen_level', float('nan')):.2g}. An effect is "
+                 "accepted when its held-out RMS falls and it removes at least "
+                 f"{result.settings.get('min_shrink', float('nan')):.0%} of the gap above "
+                 "the noise.")
+            + ("".join(_p("Not testable with these logs - " + u) for u in untestable))
+            + ("".join(_p("Not screened - " + u) for u in skipped)))
+
+
+def _diagnosis_verdict(result) -> _Verdict:
+    if not result.gap.get("baseline_converged", True):
+        return _Verdict("bad", "The baseline did not converge on every fold: do not trust "
+                        "this diagnosis.", tuple(result.verdict))
+    if result.accepted and not result.unexplained:
+        status = "ok"
+    elif result.accepted or not result.unexplained:
+        status = "caution" if result.unexplained else "ok"
+    else:
+        status = "bad"
+    headline = (f"Accepted: {', '.join(result.accepted)}." if result.accepted
+                else "No candidate effect is accepted.")
+    if not result.accepted and not result.unexplained:
+        headline += " The baseline is adequate: its held-out misfit is at the noise floor."
+    elif result.unexplained:
+        headline += " Part of the gap stays unexplained (see the heat map)."
+    return _Verdict(status, headline, tuple(result.verdict))
+
+
 _BUILDERS: Mapping[str, Callable[..., _Report]] = {"posterior": _posterior_report,
-                                                   "fit": _fit_report}
+                                                   "fit": _fit_report,
+                                                   "diagnosis": _diagnosis_report}
 
 
 # -- writing --------------------------------------------------------------------------------
@@ -747,6 +934,7 @@ def write_report(directory: str | Path, *, out: str | Path | None = None,
     report = _BUILDERS[run.kind](run, draws=draws)
     target = OutputDir(Path(out) if out is not None else run.path,
                        inputs=[run.result_file, run.path / MANIFEST]
+                       + [run.path / f for f in run.manifest.get("outputs", [])]
                        + [path for path, _ in run.inputs],
                        options={"directory": str(run.path), "kind": run.kind, "draws": draws},
                        manifest_name=REPORT_MANIFEST)
@@ -804,7 +992,7 @@ def _html(report: _Report, run: RunDirectory, images: Mapping[str, str]) -> str:
         f"report made {created}</p>",
         f'<div class="verdict {v.status}"><p class="headline">{html.escape(v.headline)}</p>'
         + (f"<ul>{details}</ul>" if details else "") + "</div>",
-        "<h2>Estimates</h2>", report.summary,
+        f"<h2>{html.escape(report.summary_title)}</h2>", report.summary,
     ]
     for section in report.sections:
         parts += [f"<h2>{html.escape(section.title)}</h2>", section.html]

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import re
+import shutil
+import subprocess
 import sys
 from pathlib import Path
 
@@ -43,3 +46,46 @@ def paper_rig():
 
     return Rig.from_mapping({"bore_mm": 32, "rod_mm": 0, "stroke_mm": 700,
                              "start_position_mm": 350, "supply_bar": 6})
+
+
+CHROMIUM = shutil.which("chromium")
+CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic",
+                  "--no-first-run", "--disable-background-networking",
+                  "--disable-component-update", "--disable-sync"]
+needs_chromium = pytest.mark.skipif(CHROMIUM is None, reason="chromium is not installed "
+                                    "(apt-get install chromium; .ci/run installs it)")
+_IMG = re.compile(r"<img\b[^>]*\bsrc=\"([^\"]*)\"")
+
+
+def _chromium(*args: str, profile: Path) -> str:
+    done = subprocess.run([CHROMIUM, *CHROMIUM_FLAGS, f"--user-data-dir={profile}", *args],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr[-2000:]
+    return done.stdout
+
+
+def check_renders_in_chromium(report: Path, tmp_path: Path) -> None:
+    """A report page as a browser shows it: a screenshot that is not blank, and every image
+    loaded (a script in a test copy of the page counts images with no natural width once the
+    page has loaded; one deliberately broken image proves that it counts)."""
+    from matplotlib.image import imread
+
+    shot = tmp_path / "shot.png"
+    _chromium(f"--screenshot={shot}", "--window-size=1200,3000", report.as_uri(),
+              profile=tmp_path / "profile")
+    pixels = imread(shot)[..., :3]
+    assert pixels.shape[:2] == (3000, 1200)
+    assert np.mean(np.any(pixels < 0.9, axis=-1)) > 0.05           # ink, not a white page
+    assert np.std(pixels) > 0.1
+    page = report.read_text(encoding="utf-8")
+    n_images = len(_IMG.findall(page))
+    assert n_images > 0
+    probe = ('<img src="data:image/png;base64,AAAA"><script>window.addEventListener("load", '
+             '() => { const images = Array.from(document.images); document.title = '
+             '`images ${images.length} broken ${images.filter(i => !i.complete || '
+             'i.naturalWidth === 0).length}`; });</script></body>')
+    copy = tmp_path / "probe.html"
+    copy.write_text(page.replace("</body>", probe), encoding="utf-8")
+    dom = _chromium("--virtual-time-budget=20000", "--dump-dom", copy.as_uri(),
+                    profile=tmp_path / "profile")
+    assert f"<title>images {n_images + 1} broken 1</title>" in dom

@@ -9,6 +9,7 @@ import sys
 
 import numpy as np
 import pytest
+from conftest import CHROMIUM, check_renders_in_chromium
 
 from fitstiff._jax import jax, jnp
 from fitstiff.diagnosis.noise import noise_floor
@@ -118,6 +119,27 @@ def test_super_model_at_its_nulls_is_the_baseline():
     np.testing.assert_allclose(r_super, r_base, rtol=1e-9, atol=1e-9)
 
 
+def test_held_out_predictions_are_the_comparisons_leave_one_log_out():
+    """The super-model's held-out folds (candidates at their nulls, masks at run time) give the
+    same leave-one-log-out RMS as fitting the baseline alone (fitstiff.comparison)."""
+    from fitstiff.comparison import held_out_rms
+    from fitstiff.diagnosis.select import folds_for, held_out
+    from fitstiff.diagnosis.supermodel import SuperProblem
+
+    logs = _logs("chamber+dahl+viscous", {"n": 1.4, "sigma0": 40, "Fc": 18, "c": 100},
+                 rates=(1.0, 4.0, 10.0), amplitudes=(0.5, 1.0))
+    sp = SuperProblem(logs, "chamber+dahl", ["viscous", "asymmetry"])
+    theta, hold = sp.start()
+    active = list(sp.baseline_terms)
+    theta, ok, _, _ = sp.solve(theta, hold, sp.model_mask(active), sp.nuisance_mask(),
+                               sp.entry_weights())
+    assert ok
+    ours = held_out(sp, folds_for(sp), theta, hold, active)
+    assert ours.converged
+    np.testing.assert_allclose(ours.rms_per_log_N, held_out_rms(logs, "chamber+dahl"),
+                               rtol=1e-5)
+
+
 @pytest.mark.parametrize("candidates, message", [
     ("viscous,nonsense", "is not a candidate effect"),
     ("dahl", "is not a candidate effect"),
@@ -199,6 +221,17 @@ def test_withheld_viscous_is_found_and_named(tmp_path):
 
     again = Diagnosis.from_dict(data)
     assert again.accepted == ("viscous",) and again.candidate("viscous").accepted
+    # the diagnosis page: verdict, heat maps, signatures, loops; every figure on disk
+    proc = subprocess.run([sys.executable, "-m", "fitstiff", "report", str(out)],
+                          capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    page = (out / "report.html").read_text()
+    assert "Accepted: viscous." in page and "Candidate effects" in page
+    for name in ("gap_heatmap", "residual_signatures", "diagnosis_loop_log0"):
+        assert (out / "figures" / f"{name}.png").stat().st_size > 10_000
+        assert f'id="{name}"' in page
+    if CHROMIUM is not None:
+        check_renders_in_chromium(out / "report.html", tmp_path)
 
 
 def test_nothing_is_accepted_without_a_missing_effect():

@@ -8,23 +8,16 @@ import hashlib
 import json
 import re
 import shutil
-import subprocess
 from pathlib import Path
 
-import numpy as np
 import pytest
-from conftest import REPO
-from matplotlib.image import imread
+from conftest import REPO, check_renders_in_chromium, needs_chromium
 
 from fitstiff.cli import main
 from fitstiff.data import fig4_logs
 from fitstiff.errors import InputError
 from fitstiff.report import FIGURES, REPORT, REPORT_MANIFEST, write_report
 
-CHROMIUM = shutil.which("chromium")
-CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic",
-                  "--no-first-run", "--disable-background-networking",
-                  "--disable-component-update", "--disable-sync"]
 IMG = re.compile(r"<img\b[^>]*\bsrc=\"([^\"]*)\"")
 
 
@@ -181,36 +174,7 @@ def test_not_a_run_directory(tmp_path, setup, message):
         write_report(tmp_path)
 
 
-def chromium(*args: str, profile: Path) -> str:
-    done = subprocess.run([CHROMIUM, *CHROMIUM_FLAGS, f"--user-data-dir={profile}", *args],
-                          capture_output=True, text=True, timeout=120)
-    assert done.returncode == 0, done.stderr[-2000:]
-    return done.stdout
-
-
-@pytest.mark.skipif(CHROMIUM is None, reason="chromium is not installed (apt-get install "
-                                               "chromium; .ci/run installs it)")
+@needs_chromium
 def test_posterior_report_renders_in_chromium(demo, tmp_path):
-    """The page as a browser shows it: a screenshot that is not blank, and every image loaded
-    (a script in a test copy of the page counts images with no natural width once the page
-    has loaded; one deliberately broken image proves that it counts)."""
-    report = demo / "posterior" / REPORT
-    shot = tmp_path / "shot.png"
-    chromium(f"--screenshot={shot}", "--window-size=1200,3000", report.as_uri(),
-             profile=tmp_path / "profile")
-    pixels = imread(shot)[..., :3]
-    assert pixels.shape[:2] == (3000, 1200)
-    assert np.mean(np.any(pixels < 0.9, axis=-1)) > 0.05           # ink, not a white page
-    assert np.std(pixels) > 0.1
-
-    page = report.read_text(encoding="utf-8")
-    n_images = len(IMG.findall(page))
-    probe = ('<img src="data:image/png;base64,AAAA"><script>window.addEventListener("load", '
-             '() => { const images = Array.from(document.images); document.title = '
-             '`images ${images.length} broken ${images.filter(i => !i.complete || '
-             'i.naturalWidth === 0).length}`; });</script></body>')
-    copy = tmp_path / "probe.html"
-    copy.write_text(page.replace("</body>", probe), encoding="utf-8")
-    dom = chromium("--virtual-time-budget=20000", "--dump-dom", copy.as_uri(),
-                   profile=tmp_path / "profile")
-    assert f"<title>images {n_images + 1} broken 1</title>" in dom
+    """The page as a browser shows it (:func:`conftest.check_renders_in_chromium`)."""
+    check_renders_in_chromium(demo / "posterior" / REPORT, tmp_path)

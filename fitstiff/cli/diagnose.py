@@ -4,12 +4,15 @@ the gap shrinks (DESIGN §6)."""
 from __future__ import annotations
 
 import argparse
+import io
 import json
+
+import numpy as np
 
 from fitstiff.cli._common import (add_log_arguments, add_out_argument, input_files,
                                   logs_from_args, reading_options)
 from fitstiff.cli.fit import add_data_arguments, problem_options
-from fitstiff.diagnosis import ALPHA, MIN_SHRINK, diagnose
+from fitstiff.diagnosis import ALPHA, HELDOUT, MIN_SHRINK, diagnose
 from fitstiff.diagnosis.supermodel import CANDIDATES
 from fitstiff.output import OutputDir, to_jsonable
 
@@ -41,6 +44,12 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     return parser
 
 
+def _npz(arrays) -> bytes:
+    buffer = io.BytesIO()
+    np.savez_compressed(buffer, **arrays)
+    return buffer.getvalue()
+
+
 def run(args) -> int:
     logs = logs_from_args(args)
     options = problem_options(args)
@@ -51,6 +60,7 @@ def run(args) -> int:
     result = diagnose(logs, baseline=args.baseline, candidates=args.candidates,
                       alpha=args.alpha, min_shrink=args.min_shrink, **options)
     out.write_json("diagnosis.json", result.to_dict())
+    out.write_bytes(HELDOUT, _npz(result.heldout_arrays()))
     out.finish()
     if args.json:
         print(json.dumps(to_jsonable(result.to_dict()), indent=2))

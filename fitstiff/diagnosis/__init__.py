@@ -11,4 +11,8 @@ by region), :mod:`~fitstiff.diagnosis.screen` (which: score statistics and detec
 from fitstiff.diagnosis.diagnose import ALPHA, MIN_SHRINK, diagnose
 from fitstiff.diagnosis.result import Candidate, Diagnosis
 
-__all__ = ["ALPHA", "MIN_SHRINK", "Candidate", "Diagnosis", "diagnose"]
+__all__ = ["ALPHA", "HELDOUT", "MIN_SHRINK", "RESULT", "Candidate", "Diagnosis", "diagnose"]
+
+#: the result file of ``fitstiff diagnose`` and the held-out residuals beside it
+RESULT = "diagnosis.json"
+HELDOUT = "heldout.npz"

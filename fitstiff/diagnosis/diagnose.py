@@ -185,7 +185,8 @@ def diagnose(logs: Sequence[Log], *, baseline: str = "chamber+dahl",
         timing_s={"setup": clock["setup"] - clock["start"],
                   "baseline": clock["baseline"] - clock["setup"],
                   "select": clock["select"] - clock["baseline"],
-                  "total": clock["end"] - clock["start"]})
+                  "total": clock["end"] - clock["start"]},
+        heldout={"before": baseline_heldout.residuals, "after": current.residuals})
 
 
 def _maxwell_shape(sp: SuperProblem, theta, hold, active) -> np.ndarray:

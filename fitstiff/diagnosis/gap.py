@@ -25,7 +25,7 @@ import pandas as pd
 from fitstiff.diagnosis.noise import NoiseFloor
 from fitstiff.segmentation import Segmentation
 
-__all__ = ["region_table", "above_floor", "Z_ABOVE", "EXCESS_ABOVE"]
+__all__ = ["region_table", "region_summary", "above_floor", "Z_ABOVE", "EXCESS_ABOVE"]
 
 Z_ABOVE = 3.0
 EXCESS_ABOVE = 1.1
@@ -99,3 +99,28 @@ def above_floor(table: pd.DataFrame) -> pd.DataFrame:
         return table
     keep = (table["z_rms"] > Z_ABOVE) & (table["rms_N"] > EXCESS_ABOVE * table["noise_N"])
     return table[keep].sort_values("excess_N", ascending=False)
+
+
+def region_summary(residuals: Sequence[np.ndarray], segmentations: Sequence[Segmentation],
+                   noise: Sequence[NoiseFloor], masks: Sequence[np.ndarray], *,
+                   value: str = "z_rms") -> pd.DataFrame:
+    """Region (rows: presliding, sliding, dwell, standstill, stroke_end) x log (columns) of
+    ``value`` (``z_rms``, ``rms_N`` or ``excess_N``) over each log's samples of the region;
+    NaN where a log has fewer than 10 samples of it (or cannot have it)."""
+    regions = ("presliding", "sliding", "dwell", "standstill", "stroke_end")
+    table = {}
+    for res, seg, nf, mask in zip(residuals, segmentations, noise, masks):
+        column = {}
+        for region in regions:
+            if region not in seg.available_regions:
+                column[region] = np.nan
+                continue
+            r = np.asarray(res)[seg.mask(region) & np.asarray(mask, bool)]
+            if r.size < _MIN_SAMPLES:
+                column[region] = np.nan
+                continue
+            rms = math.sqrt(float(r @ r) / r.size)
+            column[region] = {"z_rms": _z_rms(rms, nf.sigma, nf.rho, r.size), "rms_N": rms,
+                              "excess_N": math.sqrt(max(rms**2 - nf.sigma**2, 0.0))}[value]
+        table[seg.name] = column
+    return pd.DataFrame(table).reindex(list(regions))

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
+
+import numpy as np
 
 __all__ = ["Diagnosis", "Candidate"]
 
@@ -81,6 +83,22 @@ class Diagnosis:
     verdict: tuple[str, ...]
     files: tuple[str, ...]
     timing_s: Mapping[str, float] = dataclasses.field(default_factory=dict)
+    #: held-out residuals (model - measured force, N) per log: ``"before"`` (the baseline)
+    #: and ``"after"`` (the final model); kept beside diagnosis.json as ``heldout.npz``
+    heldout: Mapping[str, tuple[np.ndarray, ...]] = dataclasses.field(
+        default_factory=dict, compare=False, repr=False)
+
+    def heldout_arrays(self) -> dict[str, np.ndarray]:
+        """``heldout.npz`` content: ``before_<k>`` / ``after_<k>`` for log ``k``."""
+        return {f"{which}_{k}": np.asarray(r) for which, rs in self.heldout.items()
+                for k, r in enumerate(rs)}
+
+    @staticmethod
+    def heldout_from_arrays(arrays: Mapping[str, np.ndarray],
+                            n_logs: int) -> dict[str, tuple[np.ndarray, ...]]:
+        """Inverse of :meth:`heldout_arrays`."""
+        return {which: tuple(np.asarray(arrays[f"{which}_{k}"]) for k in range(n_logs))
+                for which in ("before", "after")}
 
     def to_dict(self) -> dict[str, object]:
         return {

@@ -100,9 +100,10 @@ def held_out(sp: SuperProblem, folds: Sequence[Fold], theta: np.ndarray, hold: n
             others = [i for i in range(p.n_logs) if i != fold.log]
             th, ok1, s1, _ = sp.solve(theta, hold, free_model, sp.nuisance_mask(others),
                                       sp.entry_weights(logs=others))
-            th, ok2, s2, _ = sp.solve(th, hold, none, sp.nuisance_mask([fold.log]),
-                                      sp.entry_weights(logs=[fold.log]))
+            # the trained model held (in physical values), only the log's nuisances fitted
             x = np.asarray(sp.physical(th, hold, free_model))
+            th, ok2, s2, _ = sp.solve(th, x, none, sp.nuisance_mask([fold.log]),
+                                      sp.entry_weights(logs=[fold.log]))
             force = sp.forces(x, th)[fold.log]
             residuals[fold.log] = force - np.asarray(p.logs[fold.log].force)
             converged &= ok1 and ok2

@@ -23,6 +23,7 @@ import dataclasses
 from collections.abc import Mapping, Sequence
 
 import equinox as eqx
+import lineax as lx
 import numpy as np
 import optimistix as optx
 
@@ -32,7 +33,7 @@ from fitstiff.fitting import initial_guess, materialised_jacobian
 from fitstiff.log import Log
 from fitstiff.model import parse_spec
 from fitstiff.problem import Problem
-from fitstiff.terms import EFFECTS, FRICTION_BASES, TERMS
+from fitstiff.terms import EFFECTS, FRICTION_BASES
 
 __all__ = ["CANDIDATES", "SuperProblem", "candidate_names", "spec_token"]
 
@@ -90,7 +91,7 @@ def candidate_names(baseline: str, requested: str | Sequence[str] = "all", *,
 def _not_applicable(name: str, base: list[str], logs: Sequence[Log]):
     friction = [b for b in base if b in FRICTION_BASES]
     if name in base:
-        return (f"'{name}' is already in the baseline", f"drop it from --candidates or the "
+        return (f"'{name}' is already in the baseline", "drop it from --candidates or the "
                 "baseline")
     if name == "maxwell_slip" and not friction:
         return ("'maxwell_slip' tests non-local memory on a Dahl or LuGre baseline",
@@ -166,7 +167,12 @@ class SuperProblem:
         self.units = par.units()
         self.series = self.problem.residual_series()
         self.n_residuals = max(s.span.stop for s in self.series)
-        self._solve = _Solve(self.problem)
+        per_log = len(self.problem.nuisance_names)
+        largest = max((self.elements(c).size for c in self.candidates), default=0)
+        self._lengths = {per_log,
+                         int(self.model_mask(self.baseline_terms).sum()) + largest
+                         + (self.size - self.n_model)}
+        self._solvers: dict[int, _Solve] = {}
         self._jac = jax.jit(self._jacobian_impl)
         self._forces = jax.jit(self._forces_impl)
         self._column = jax.jit(self._column_impl)
@@ -237,13 +243,31 @@ class SuperProblem:
         return jnp.where(free_model, self.problem.par.physical(theta[:self.n_model]), hold)
 
     def solve(self, theta0, hold, free_model, free_nuisance, weights, *, max_steps=200):
-        """Least squares over the free entries; returns ``(theta, converged, steps, cost)``."""
-        free = np.concatenate([free_model, free_nuisance])
-        theta, result, steps, cost = self._solve(
-            jnp.asarray(theta0), jnp.asarray(hold), jnp.asarray(free_model),
-            jnp.asarray(free), jnp.asarray(weights), max_steps)
+        """Least squares over the free entries; returns ``(theta, converged, steps, cost)``.
+
+        The solver sees only the free entries (gathered into a vector of a fixed length, padded
+        with a slot that changes nothing), so the Jacobian through the scan carries as many
+        tangents as there are free entries, not the whole super-model's. Two lengths are
+        compiled: the largest model + nuisance set of the diagnosis, and one log's nuisances
+        (the held-out predictions).
+        """
+        free = np.flatnonzero(np.concatenate([free_model, free_nuisance]))
+        size = next((k for k in sorted(self._lengths) if k >= free.size), None)
+        if size is None:
+            raise ValueError(f"{free.size} free entries exceed the compiled {self._lengths}")
+        index = np.full(size, self.size)          # the padding slot: theta[size] is unused
+        index[:free.size] = free
+        theta_pad = np.append(np.asarray(theta0, dtype=float), 0.0)
+        theta, result, steps, cost = self._solver(size)(
+            jnp.asarray(theta_pad), jnp.asarray(index), jnp.asarray(hold),
+            jnp.asarray(free_model), jnp.asarray(weights), max_steps)
         ok = bool(result == optx.RESULTS.successful) and bool(np.isfinite(cost))
-        return np.asarray(theta), ok, int(steps), float(cost)
+        return np.asarray(theta)[:self.size], ok, int(steps), float(cost)
+
+    def _solver(self, size: int) -> _Solve:
+        if size not in self._solvers:
+            self._solvers[size] = _Solve(self.problem)
+        return self._solvers[size]
 
     def _jacobian_impl(self, x, theta):
         def f(x, nuis):
@@ -279,24 +303,26 @@ class SuperProblem:
 
 
 class _Solve(eqx.Module):
-    """One compiled masked least-squares solve for a super-problem."""
+    """One compiled masked least-squares solve for a super-problem (per gathered length)."""
 
     problem: Problem = eqx.field(static=True)
 
     @eqx.filter_jit
-    def __call__(self, theta0, hold, free_model, free, weights, max_steps):
+    def __call__(self, theta_pad, index, hold, free_model, weights, max_steps):
         p = self.problem
         n_model = p.par.size
 
-        def residuals(theta):
-            theta = jnp.where(free, theta, theta0)
+        def residuals(z):
+            theta = theta_pad.at[index].set(z)[:-1]
             x = jnp.where(free_model, p.par.physical(theta[:n_model]), hold)
             return p.residuals_physical(x, theta) * weights
 
         wrapped = materialised_jacobian(residuals)
-        solver = optx.LevenbergMarquardt(rtol=1e-6, atol=1e-6)
-        sol = optx.least_squares(lambda th, _: wrapped(th), solver, theta0,
+        # QR of the damped system: 2-3x faster here than the default (SVD for a
+        # non-square operator); the damping rows keep it full rank
+        solver = optx.LevenbergMarquardt(rtol=1e-6, atol=1e-6, linear_solver=lx.QR())
+        sol = optx.least_squares(lambda z, _: wrapped(z), solver, theta_pad[index],
                                  max_steps=max_steps, throw=False)
-        theta = jnp.where(free, sol.value, theta0)
-        r = residuals(theta)
+        theta = theta_pad.at[index].set(sol.value)
+        r = residuals(sol.value)
         return theta, sol.result, sol.stats["num_steps"], jnp.sum(r**2)
