@@ -1,16 +1,45 @@
 """fitstiff: passive stiffness of pneumatic cylinders from force-displacement logs.
 
-Library entry points (each also behind a ``fitstiff`` subcommand):
+The flow, each step a verb with a result noun (and a ``fitstiff`` subcommand)::
 
-- :func:`fitstiff.loading.load_log` - read a CSV log (+ sidecar) into a :class:`~fitstiff.log.Log`;
-- :func:`fitstiff.segmentation.segment` - reversals, loops, pauses and per-sample regions;
-- :mod:`fitstiff.terms` / :func:`fitstiff.model.build_model` - JAX model terms and their sum;
-- :func:`fitstiff.simulate.simulate` - synthetic logs.
+    load_logs -> segment -> build_model -> fit -> sample_posterior -> diagnose -> write_report
+       Log    Segmentation    Model     FitResult    Posterior       Diagnosis    report.html
+
+``import fitstiff`` is cheap: the names below are imported on first use (JAX and the solvers
+load only when a model, fit, posterior or diagnosis is asked for).
 """
+
+from __future__ import annotations
+
+import importlib
 
 __version__ = "0.1.0"
 
 from fitstiff.errors import FitstiffError, InputError  # noqa: E402
 from fitstiff.log import Log, Rig  # noqa: E402
 
-__all__ = ["FitstiffError", "InputError", "Log", "Rig", "__version__"]
+#: public name -> the module that defines it
+_LAZY = {
+    "load_log": "fitstiff.loading", "load_logs": "fitstiff.loading",
+    "segment": "fitstiff.segmentation", "Segmentation": "fitstiff.segmentation",
+    "build_model": "fitstiff.model", "Model": "fitstiff.model",
+    "fit": "fitstiff.fitting", "FitResult": "fitstiff.fitting",
+    "sample_posterior": "fitstiff.posterior", "Posterior": "fitstiff.posterior",
+    "simulate": "fitstiff.simulate", "Noise": "fitstiff.simulate",
+    "diagnose": "fitstiff.diagnosis", "Diagnosis": "fitstiff.diagnosis",
+    "write_report": "fitstiff.report",
+}
+
+__all__ = ["FitstiffError", "InputError", "Log", "Rig", "__version__", *_LAZY]
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        value = getattr(importlib.import_module(_LAZY[name]), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'fitstiff' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(__all__)

@@ -243,3 +243,4 @@ def test_nothing_is_accepted_without_a_missing_effect():
     assert result.accepted == ()
     assert result.gap["final_heldout_rms_N"] == result.gap["heldout_rms_N"]
     assert result.gap["heldout_rms_N"] < 1.3 * result.gap["noise_N"]
+
