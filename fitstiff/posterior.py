@@ -82,6 +82,7 @@ from fitstiff._jax import jax, jnp
 from fitstiff.derived import DERIVED, derived_quantities, split_unit
 from fitstiff.errors import InputError
 from fitstiff.fitting import FitResult, fit_problem
+from fitstiff.guards import nonfinite_error
 from fitstiff.likelihood import Layout, NoiseModel, TurningPoints, noise_from_dict
 from fitstiff.log import Log
 from fitstiff.model import Model
@@ -513,7 +514,7 @@ def _start(fit: FitResult, problem: Problem, log_prob: LogPosterior, walkers: in
         if outside:
             raise InputError(None, "--priors", "the least-squares optimum has zero prior "
                              f"density in {', '.join(outside)}", "widen those priors")
-        raise FloatingPointError("the log-posterior is not finite at the least-squares optimum")
+        raise nonfinite_error(problem.logs, "the log-posterior at the least-squares optimum")
     jac = np.asarray(jax.jacfwd(problem.physical)(jnp.asarray(theta)))
     cov = np.nan_to_num(np.asarray(fit.covariance, dtype=float))
     inv = np.linalg.pinv(jac)
@@ -530,8 +531,8 @@ def _start(fit: FitResult, problem: Problem, log_prob: LogPosterior, walkers: in
         z = rng.standard_normal((int(bad.sum()), theta.size))
         coords[bad] = theta + _BALL * (z @ root.T + sd_floor * rng.standard_normal(z.shape))
         lp[bad] = log_prob(coords[bad])
-    raise FloatingPointError("could not place the walkers: the log-posterior is not finite "
-                             "around the least-squares optimum")
+    raise nonfinite_error(problem.logs, "the log-posterior around the least-squares optimum "
+                          "(no place for the walkers)")
 
 
 @dataclasses.dataclass(frozen=True)

@@ -40,7 +40,6 @@ values in the parameter's display unit::
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 import os
 from collections.abc import Mapping
@@ -52,6 +51,7 @@ from fitstiff._jax import jnp
 from fitstiff.errors import InputError
 from fitstiff.params import Parameterization, named_params
 from fitstiff.problem import Problem
+from fitstiff.validation import read_json
 
 __all__ = ["DISTRIBUTIONS", "Prior", "Priors", "load_priors"]
 
@@ -152,14 +152,8 @@ def _check_args(dist: str, args: list[float], *, where: str | None, what: str) -
 def load_priors(path: str | os.PathLike) -> dict[str, Mapping[str, object]]:
     """Read a priors JSON file (validated against a problem by :class:`Priors`)."""
     path = Path(path)
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise InputError(str(path), "--priors", f"cannot be read ({exc.strerror})",
-                         "give an existing JSON file") from None
-    except json.JSONDecodeError as exc:
-        raise InputError(str(path), f"--priors, line {exc.lineno}", f"invalid JSON ({exc.msg})",
-                         'write an object such as {"sigma0": {"dist": "flat"}}') from None
+    data = read_json(path, what="--priors",
+                     example='{"sigma0": {"dist": "normal", "mean": 40, "sd": 10}}')
     if not isinstance(data, dict):
         raise InputError(str(path), "--priors", f"found a JSON {type(data).__name__}",
                          "write an object keyed by parameter name")
