@@ -72,7 +72,7 @@ from typing import Any
 from fitstiff.errors import InputError
 from fitstiff.log import Rig
 from fitstiff.units import Kind, UnitSpec, parse_unit
-from fitstiff.validation import describe_type, parse_decimal, read_json
+from fitstiff.validation import describe_type, parse_decimal, read_json, shown
 
 __all__ = [
     "QUANTITIES", "REQUIRED_QUANTITIES", "EXAMPLE_NAMES", "CHAMBERS", "ColumnSpec", "Format",
@@ -194,7 +194,7 @@ def parse_delimiter(text: str, *, where: str | None = None) -> str:
         return DELIMITER_NAMES[text]
     if len(text) == 1 and text not in "\r\n\"":
         return text
-    raise InputError(where, "delimiter", f"found {text!r}",
+    raise InputError(where, "delimiter", f"found {shown(text)}",
                      "give one character or one of: " + ", ".join(DELIMITER_NAMES))
 
 
@@ -203,7 +203,7 @@ def parse_vented(value: object, *, where: str | None = None, what: str = "key 'v
     """Chambers open to ambient: a list of ``"a"`` / ``"b"``."""
     items = [value] if isinstance(value, str) else value
     if not isinstance(items, list | tuple) or not all(c in CHAMBERS for c in items):
-        raise InputError(where, what, f"found {value!r}",
+        raise InputError(where, what, f"found {shown(value)}",
                          'give a list of vented chambers, e.g. ["b"] (chambers: "a", "b")')
     return frozenset(items)
 
@@ -234,15 +234,15 @@ class Format:
                                  "comments)")
         columns = values.get("columns", [])
         if not isinstance(columns, list):
-            raise InputError(source, "key 'columns'", f"found {columns!r}",
+            raise InputError(source, "key 'columns'", f"found {shown(columns)}",
                              f"give a list of entries {ENTRY_FORM}")
         no_header = values.get("no_header")
         if no_header is not None and not isinstance(no_header, bool):
-            raise InputError(source, "key 'no_header'", f"found {no_header!r}",
+            raise InputError(source, "key 'no_header'", f"found {shown(no_header)}",
                              "give true or false")
         rig = values.get("rig", {})
         if not isinstance(rig, Mapping):
-            raise InputError(source, "key 'rig'", f"found {rig!r}",
+            raise InputError(source, "key 'rig'", f"found {shown(rig)}",
                              'give an object of rig metadata, e.g. {"bore_mm": 25}')
         rig = {k: v for k, v in rig.items() if not k.startswith("_")}
         Rig.from_mapping(rig, source=source)  # names a bad key or value in the format file

@@ -8,7 +8,9 @@ a result document before it is written - and turn it into one
 :class:`~fitstiff.errors.InputError` that names the log and the likely cause, found by
 :func:`likely_cause` (``force spike of 1e+300 N at line 812``).
 
-:func:`check_motion` refuses a log that gives a fit nothing to determine (no motion).
+:func:`check_logs` refuses, before a fit, a log with a non-finite or implausible value (a log
+made in memory did not pass the loader) or one that gives a fit nothing to determine (no
+motion).
 """
 
 from __future__ import annotations
@@ -20,8 +22,9 @@ import numpy as np
 
 from fitstiff.errors import InputError
 from fitstiff.log import Log
+from fitstiff.validation import CHANNEL_LIMITS
 
-__all__ = ["MIN_TRAVEL_M", "check_finite", "check_motion", "first_nonfinite", "likely_cause",
+__all__ = ["MIN_TRAVEL_M", "check_finite", "check_logs", "first_nonfinite", "likely_cause",
            "nonfinite_error"]
 
 #: a log whose displacement spans less than this did not move (1 nm, below any sensor)
@@ -32,6 +35,8 @@ _SPIKE = 1e3          # |value - median| / spread above which a sample is called
 _CHANNELS = (("force", "force", "N", 1.0), ("displacement", "displacement", "mm", 1e-3),
              ("pressure A", "pressure_a", "bar abs", 1e5),
              ("pressure B", "pressure_b", "bar abs", 1e5), ("time", "time", "s", 1.0))
+_QUANTITY = {"force": "force", "displacement": "displacement", "pressure_a": "p_a",
+             "pressure_b": "p_b", "time": "time"}
 
 
 def _where(log: Log) -> str:
@@ -45,10 +50,26 @@ def _sample(log: Log, i: int) -> str:
     return f"sample {i}"
 
 
-def check_motion(logs: Iterable[Log]) -> None:
-    """Every log moves: a displacement that spans less than :data:`MIN_TRAVEL_M` gives a fit
-    nothing to determine (no reversal, no slope, no friction level)."""
+def check_logs(logs: Iterable[Log]) -> None:
+    """Logs a fit can use: every channel finite and within its physical bound
+    (:data:`~fitstiff.validation.CHANNEL_LIMITS`, as the loader checks; a log made in memory
+    did not pass the loader), and motion: a displacement that spans less than
+    :data:`MIN_TRAVEL_M` gives a fit nothing to determine (no reversal, no slope, no
+    friction level)."""
     for log in logs:
+        for label, attribute, unit, scale in _CHANNELS:
+            values = getattr(log, attribute)
+            if values is None:
+                continue
+            v = np.asarray(values, dtype=float)
+            limit = CHANNEL_LIMITS[_QUANTITY[attribute]]
+            bad = np.flatnonzero(~(np.abs(v) <= limit.bound))
+            if bad.size:
+                i = int(bad[0])
+                raise InputError(_where(log), f"{label}, {_sample(log, i)}",
+                                 f"found {v[i] / scale:.4g} {unit}, beyond the plausible "
+                                 f"magnitude {limit.describe()}",
+                                 "correct or remove the sample (a spike?) and check the unit")
         x = np.asarray(log.displacement, dtype=float)
         span = float(np.ptp(x)) if x.size else 0.0
         if not span >= MIN_TRAVEL_M:

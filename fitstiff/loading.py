@@ -407,8 +407,9 @@ def _check_magnitude(table: _Table, column: _Column, si: np.ndarray) -> None:
         spec = column.spec
         scaled = f" (unit '{spec.unit.text}'" + (f", scale {spec.scale:g}" if spec.scale != 1
                                                  else "") + ")"
+        absolute = " absolute" if spec.quantity.startswith("p_") else ""
         raise _at(table, column, i, f"found {_q(_cell(table, column, i))}{scaled} = "
-                  f"{si[i]:.4g} {limit.unit}, beyond the plausible magnitude of a "
+                  f"{si[i]:.4g} {limit.unit}{absolute}, beyond the plausible magnitude of a "
                   f"{spec.quantity.replace('p_', 'pressure ')} channel, {limit.describe()}",
                   "correct the cell or remove the row, and check the column's unit")
 
@@ -486,16 +487,15 @@ def _load(path: Path, layout: Format, overrides: dict[str, object]) -> Log:
     for quantity, column in found.items():
         with np.errstate(over="ignore"):
             si[quantity] = _values(table, column, no_header=no_header) * column.spec.factor
+            if quantity.startswith("p_") and not column.spec.unit.absolute:
+                si[quantity] = si[quantity] + rig.ambient_pressure      # stored absolute
         _check_magnitude(table, column, si[quantity])
     if "time" in si:
         _check_time(table, found["time"], si["time"])
         _check_time_step(table, found["time"], si["time"])
     for chamber in CHAMBERS:
-        quantity = f"p_{chamber}"
-        if quantity in si and not found[quantity].spec.unit.absolute:
-            si[quantity] = si[quantity] + rig.ambient_pressure
-        if quantity in si:
-            _check_pressure(table, found[quantity], si[quantity])
+        if f"p_{chamber}" in si:
+            _check_pressure(table, found[f"p_{chamber}"], si[f"p_{chamber}"])
     _check_stroke(table, found["displacement"], si["displacement"], rig)
 
     notes = []

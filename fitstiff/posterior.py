@@ -154,8 +154,9 @@ class Diagnostics:
     def to_dict(self) -> dict[str, object]:
         return {"acceptance_fraction": float(np.mean(self.acceptance_fraction)),
                 "acceptance_fraction_min": float(np.min(self.acceptance_fraction)),
-                "autocorr_time": dict(self.autocorr_time),
-                "effective_samples": dict(self.effective_samples),
+                # None where not estimated (a coordinate that never moved: see reason)
+                "autocorr_time": {k: _or_none(v) for k, v in self.autocorr_time.items()},
+                "effective_samples": {k: _or_none(v) for k, v in self.effective_samples.items()},
                 "converged": self.converged, "reason": self.reason, "steps": self.steps,
                 "walkers": self.walkers, "discard": self.discard, "thin": self.thin,
                 "tau_multiple": self.tau_multiple, "noise_model": self.noise_model}
@@ -213,6 +214,14 @@ class Posterior:
         i = self.names.index(name)
         return _summary(self.flat(name) / self.priors.scales[i], unit=self.priors.units[name])
 
+    def _defined_summary(self, name: str) -> dict[str, object]:
+        """:meth:`summary`, with None for the numbers of a quantity the model does not define
+        (NaN in every sample, e.g. the breakaway of a model without friction)."""
+        summary = self.summary(name)
+        if np.isfinite(self.flat(name)).any():
+            return summary
+        return {k: (None if k != "unit" else v) for k, v in summary.items()}
+
     def interval(self, name: str) -> tuple[float, float]:
         """The central 90 % interval ``(q05, q95)`` in display units."""
         s = self.summary(name)
@@ -231,7 +240,7 @@ class Posterior:
         out: dict[str, object] = {
             "model": problem.model.spec,
             "parameters": parameters,
-            "derived": {k: self.summary(k) for k in self.derived},
+            "derived": {k: self._defined_summary(k) for k in self.derived},
             "nuisances": nuisances,
             "diagnostics": self.diagnostics.to_dict(),
             "noise": {"model": self.noise.to_dict(),
@@ -298,6 +307,10 @@ class Posterior:
         for name, unit in units.items():
             idata.posterior[name].attrs["unit"] = unit
         return idata
+
+
+def _or_none(value: float) -> float | None:
+    return float(value) if math.isfinite(value) else None
 
 
 def _summary(values: np.ndarray, *, unit: str) -> dict[str, object]:

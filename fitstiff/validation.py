@@ -39,8 +39,8 @@ import numpy as np
 from fitstiff.errors import InputError
 
 __all__ = ["CHANNEL_LIMITS", "MAX_JSON_BYTES", "MAX_JSON_DEPTH", "MAX_JSON_VALUES",
-           "MIN_TIME_STEP_S", "ChannelLimit", "cli_number", "describe_type", "is_decimal",
-           "number", "parse_decimal", "read_json", "regular_file"]
+           "MIN_TIME_STEP_S", "ChannelLimit", "cli_number", "describe_type", "exists",
+           "is_decimal", "number", "parse_decimal", "read_json", "regular_file", "shown"]
 
 MAX_JSON_BYTES = 1 << 20      # a sidecar is a few hundred bytes, a format file a few kB
 MAX_JSON_DEPTH = 16
@@ -68,18 +68,30 @@ def parse_decimal(text: str) -> float | None:
 
 
 def describe_type(value: object) -> str:
-    """How a value reads in JSON terms, for messages: ``true (a boolean)``, ``'32' (text)``."""
+    """How a value reads in JSON terms, short, for messages: ``true (a boolean)``,
+    ``'32' (text)``, ``[32] (a list)``, ``an object``, ``null``."""
     if isinstance(value, (bool, np.bool_)):
         return f"{'true' if value else 'false'} (a boolean)"
     if isinstance(value, str):
-        return f"{_short(repr(value))} (text)"
+        return f"{shown(value)} (text)"
     if isinstance(value, Mapping):
         return "an object"
     if isinstance(value, (list, tuple)):
-        return f"{_short(json.dumps(value, default=str))} (a list)"
+        return f"{shown(value)} (a list)"
     if value is None:
         return "null"
-    return _short(repr(value))
+    return shown(value)
+
+
+def shown(value: object) -> str:
+    """A short ``repr`` of any value, for messages (``'gamma'``, ``['c']``, ``1e+300``)."""
+    if isinstance(value, (int, np.integer)) and abs(int(value)).bit_length() > 128:
+        return f"an integer of about {int(abs(int(value)).bit_length() * 0.30103)} digits"
+    try:
+        text = repr(value)
+    except (ValueError, RecursionError):     # e.g. an integer beyond str()'s digit limit
+        text = f"<{type(value).__name__}>"
+    return _short(text)
 
 
 def _short(text: str, limit: int = 40) -> str:
@@ -121,17 +133,19 @@ give a number in mm, e.g. 1
     except OverflowError:      # a JSON integer with hundreds of digits
         result = math.inf if value > 0 else -math.inf
     if not math.isfinite(result):
-        shown = _short(str(value)) if isinstance(value, (int, np.integer)) else repr(result)
+        shown = describe_type(value) if isinstance(value, (int, np.integer)) else repr(result)
         raise InputError(where, what, f"found {shown}, not a finite number",
                          f"give a finite number{in_unit}")
     too_low = low is not None and (result < low or (low_open and result == low))
     if too_low or (high is not None and result > high):
-        bounds = []
-        if low is not None:
-            bounds.append(f"{'above' if low_open else 'from'} {_fmt(low)}")
-        if high is not None:
-            bounds.append(f"{'up ' if low_open else ''}to {_fmt(high)}")
-        span = f"{' '.join(bounds)} {unit}".strip()
+        if low is None:
+            span = f"at most {_fmt(high)} {unit}"
+        else:
+            span = f"{'above' if low_open else 'from'} {_fmt(low)}"
+            if high is not None:
+                span += f" {'up ' if low_open else ''}to {_fmt(high)}"
+            span = f"{span} {unit}"
+        span = span.strip()
         about = f"{meaning}{in_unit}" if meaning else f"a value{in_unit}"
         raise InputError(where, what, f"found {_fmt(result)} {unit}".rstrip()
                          + f", outside the plausible range ({span})",
