@@ -139,7 +139,7 @@ def likely_cause(logs: Sequence[Log]) -> tuple[Log | None, str]:
         _, log, text = max(found, key=lambda item: item[0])
         return log, text
     return None, ("no single extreme sample stands out: extreme rig metadata or parameter "
-                  "values are likely")
+                  "values (--fix, priors) are likely")
 
 
 def nonfinite_error(logs: Sequence[Log], what: str, *, state: str = "not finite"

@@ -388,3 +388,115 @@ def test_named_pipe_in_a_real_process(tmp_path):
     assert result.stderr.strip() == (f"fitstiff fit: error: {fifo}: file: is a named pipe "
                                      "(FIFO), not a regular file; save the data to a regular "
                                      "file and give its path")
+
+
+# -- numerical guards ---------------------------------------------------------------------------
+
+def memory_log(force_at: dict[int, float] | None = None, n: int = 400):
+    """A small triangle log made in memory (so the loader's bounds do not apply)."""
+    from fitstiff.log import Log
+
+    x = 1e-3 * np.interp(np.arange(n), [0, n // 4, 3 * n // 4, n - 1], [0, 1, -1, 0])
+    force = 40e3 * np.clip(x, -4.5e-4, 4.5e-4) + 0.01 * np.sin(np.arange(n))
+    for i, value in (force_at or {}).items():
+        force[i] = value
+    return Log(name="memory", displacement=x, force=force, time=np.arange(n) * 1e-3)
+
+
+def test_fit_refuses_a_spike_that_did_not_pass_the_loader():
+    from fitstiff.fitting import fit
+
+    with pytest.raises(InputError) as info:
+        fit([memory_log({312: 1e300})], "viscous")
+    assert str(info.value) == ("memory: force, sample 312: found 1e+300 N, beyond the "
+                               "plausible magnitude 1e+07 N (10 MN, beyond any cylinder or "
+                               "load cell); correct or remove the sample (a spike?) and check "
+                               "the unit")
+
+
+def test_non_finite_residuals_are_an_input_error_not_a_result():
+    """A fixed parameter that makes the model overflow: the fit stops at the guard instead of
+    summarising inf (the issue's fit.json built on inf)."""
+    from fitstiff.fitting import fit
+
+    with pytest.raises(InputError, match=r"^memory: the fit's whitened residuals and "
+                                         r"Jacobian: not finite or beyond 1e\+100"):
+        fit([memory_log()], "viscous", fix={"c": 1e300}, max_steps=5)
+
+
+def test_likely_cause_names_the_spike_with_its_line(tmp_path):
+    from fitstiff.guards import likely_cause, nonfinite_error
+
+    log = memory_log({312: 1e300}).replace(path=tmp_path / "spike.csv", source={"header": True})
+    culprit, cause = likely_cause([memory_log(), log])
+    assert culprit is log
+    assert cause.startswith("force spike of 1e+300 N at line 314 (the middle half of the "
+                            "channel spans")
+    message = str(nonfinite_error([log], "the log-posterior at the least-squares optimum"))
+    assert message.startswith(f"{tmp_path / 'spike.csv'}: the log-posterior at the "
+                              "least-squares optimum: not finite (likely cause: force spike")
+
+
+def test_result_json_with_inf_or_nan_is_not_written(tmp_path):
+    from fitstiff.output import OutputDir
+
+    out = OutputDir(tmp_path / "out")
+    with pytest.raises(InputError) as info:
+        out.write_json("fit.json", {"rms_N": 0.2, "correlation": {"matrix": np.array(
+            [[1.0, np.nan], [np.nan, 1.0]])}})
+    assert str(info.value).startswith(f"{tmp_path / 'out' / 'fit.json'}: entry "
+                                      "'correlation.matrix[0][1]': is nan, so the result is "
+                                      "not written")
+    with pytest.raises(InputError, match="entry 'parameters.n.stderr': is inf"):
+        out.write_json("posterior.json", {"parameters": {"n": {"stderr": float("inf")}}})
+    assert not list((tmp_path / "out").iterdir())
+    out.write_json("fit.json", {"rms_N": 0.2, "stderr": None})      # None: not determined
+    assert json.loads((tmp_path / "out" / "fit.json").read_text()) == {"rms_N": 0.2,
+                                                                      "stderr": None}
+
+
+def test_a_floating_point_warning_in_a_command_becomes_one_line(tmp_path, capsys, monkeypatch):
+    """Whatever the guards miss: numpy's RuntimeWarning stops the command with exit 2."""
+    import fitstiff.cli.inspect as inspect_cli
+
+    def overflowing(args):
+        return int(np.float64(1e300) * np.float64(1e300) > 0)
+
+    monkeypatch.setattr(inspect_cli, "run", overflowing)
+    path = tmp_path / "run1.csv"
+    path.write_bytes(BASE)
+    assert main(["inspect", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"fitstiff inspect: error: {path}: numerical problem: overflow "
+                          "encountered in scalar multiply")
+    assert err.count("\n") == 1 and "fitstiff inspect" in err
+
+
+def test_velocity_of_a_log_with_a_long_pause_is_exact():
+    """Time in hours with a long gap: the denoising velocity stays what it is without the gap
+    (window sums relative to each sample; running sums over the log lost every digit)."""
+    from fitstiff.denoise import segment_velocity
+
+    n = 1000
+    t = np.arange(n) * 1e-3
+    x = 1e-3 * np.interp(np.arange(n), [0, 500, 999], [0.0, 1.0, 0.0])
+    reference = segment_velocity(x, t, np.array([500]), noise=1e-6)
+    for gap_s in (3.6e4, 3.6e6):        # 10 h, 1000 h (the old sums: 3 % and 100 % off)
+        paused = t + np.where(np.arange(n) > 700, gap_s, 0.0)
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            v = segment_velocity(x, paused, np.array([500]), noise=1e-6)
+        near_gap = (np.arange(n) > 650) & (np.arange(n) < 750)
+        np.testing.assert_allclose(v[~near_gap], reference[~near_gap], rtol=1e-5)
+
+
+def test_plain_decimal_numbers():
+    from fitstiff.validation import cli_number, is_decimal
+
+    good = ["0", "-0.0", "+12", "1.", ".5", "1.5e-3", "2E+10", " 7 "]
+    bad = ["1_000", "0x10", "nan", "inf", "Infinity", "١٢", "１２", "1e", "e5", "+-1", "", "1 2"]
+    assert all(is_decimal(t) for t in good) and not any(is_decimal(t) for t in bad)
+    assert cli_number("1.5e3") == 1500.0
+    for text in ("1_000", "nan", "1e999"):
+        with pytest.raises(Exception, match="found"):
+            cli_number(text)
