@@ -60,8 +60,8 @@ _OVERRIDE_SOURCE = "command-line overrides"
 
 ColumnEntries = Sequence[str | Mapping[str, Any]]
 #: every line a plain decimal (one pass over a whole column; the cell loop finds the culprit)
-_DECIMAL_LINES = re.compile(r"(?:[^\S\n]*[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)"
-                            r"(?:[eE][+-]?[0-9]+)?[^\S\n]*\n)*")
+_DECIMAL_LINES = re.compile(r"(?:[ \t\r\f\v]*[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)"
+                            r"(?:[eE][+-]?[0-9]+)?[ \t\r\f\v]*\n)*")
 
 
 def load_log(path: str | os.PathLike[str], *, columns: ColumnEntries | None = None,
@@ -389,7 +389,12 @@ def _values(table: _Table, column: _Column, *, no_header: bool) -> np.ndarray:
             elif i == 0 and no_header:
                 fix = "line 1 looks like a header: drop --no-header (no_header=False)"
         raise _at(table, column, i, found, fix)
-    values = np.fromiter((float(c) for c in cells), dtype=np.float64, count=len(cells))
+    try:
+        values = np.fromiter((float(c) for c in cells), dtype=np.float64, count=len(cells))
+    except ValueError:      # cannot happen for plain decimals; never a traceback if it does
+        i = next(i for i, c in enumerate(cells) if not _is_number(c))
+        raise _at(table, column, i, f"found {_q(cells[i])}, not a number",
+                  "make every cell of this column a number") from None
     bad = np.flatnonzero(~np.isfinite(values))
     if bad.size:            # an exponent beyond the float range: 1e999
         raise _at(table, column, bad[0], f"found {_q(cells[bad[0]])}, not a finite number",

@@ -585,11 +585,18 @@ def _run_chunks(sampler: emcee.EnsembleSampler, state, *, names: Sequence[str], 
     return check
 
 
+def _integrated_time(chain: np.ndarray) -> np.ndarray:
+    """emcee's autocorrelation time per coordinate; NaN (without numpy's 0/0 warning) for a
+    coordinate that never moved, which :func:`_convergence` reports."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return emcee.autocorr.integrated_time(chain, tol=0, quiet=True)
+
+
 def _convergence(sampler: emcee.EnsembleSampler, names: Sequence[str], tau_multiple: float,
                  check_every: int) -> _Check:
     chain = sampler.get_chain()
     n = chain.shape[0]
-    tau = emcee.autocorr.integrated_time(chain, tol=0, quiet=True)
+    tau = _integrated_time(chain)
     worst = int(np.nanargmax(tau)) if np.isfinite(tau).any() else 0
     tau_max = float(tau[worst])
     if not np.isfinite(tau_max):
@@ -603,8 +610,9 @@ def _convergence(sampler: emcee.EnsembleSampler, names: Sequence[str], tau_multi
     if previous <= 0:
         return _Check(False, "one check only: the autocorrelation times are not yet known to "
                              "be stable", tau, n)
-    before = emcee.autocorr.integrated_time(chain[:previous], tol=0, quiet=True)
-    change = np.abs(tau - before) / tau
+    before = _integrated_time(chain[:previous])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        change = np.abs(tau - before) / tau
     if np.nanmax(change) > _TAU_STABLE:
         k = int(np.nanargmax(change))
         return _Check(False, f"the autocorrelation time of {names[k]} changed by "

@@ -50,13 +50,16 @@ MAX_JSON_VALUES = 10_000
 _DECIMAL = re.compile(r"[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?")
 
 
+_BLANKS = " \t\r\n\f\v"     # ASCII blanks around a number (float() takes more than these)
+
+
 def is_decimal(text: str) -> bool:
-    """``text`` (surrounding blanks allowed) is a plain decimal number, e.g. ``-1.5e3``.
+    """``text`` (surrounding ASCII blanks allowed) is a plain decimal number, e.g. ``-1.5e3``.
 
     >>> [is_decimal(t) for t in ("12", " -0.5 ", "1.5e-3", ".5", "1_000", "nan", "0x10", "")]
     [True, True, True, True, False, False, False, False]
     """
-    return _DECIMAL.fullmatch(text.strip()) is not None
+    return _DECIMAL.fullmatch(text.strip(_BLANKS)) is not None
 
 
 def parse_decimal(text: str) -> float | None:
@@ -126,7 +129,7 @@ give a number in mm, e.g. 1
         shown = _fmt(example if example is not None else (low if low and low > 0 else 1))
         fix = f"give a number{in_unit}, e.g. {shown}"
         if isinstance(value, str) and parse_decimal(value) is not None:
-            fix = f"write the number without quotes ({value.strip()}){in_unit}"
+            fix = f"write the number without quotes ({value.strip(_BLANKS)}){in_unit}"
         raise InputError(where, what, f"found {describe_type(value)}, not a number", fix)
     try:
         result = float(value)

@@ -261,6 +261,10 @@ CORPUS: dict[str, Case] = {
     "--fix n=1_000": Case(argv=["--fix", "n=1_000"],
                           expect={"fit": "value '1_000' is not a number",
                                   "posterior": "value '1_000' is not a number"}),
+    "--max-steps 0": Case(argv=["--max-steps", "0"],
+                          expect={"fit": "--max-steps 0: must be at least 1"}),
+    "--skip -5": Case(argv=["--skip=-5"], expect={"fit": "--skip -5: must be at least 0",
+                                                  "posterior": "--skip -5: must be at least 0"}),
     "--weight 1e308": Case(argv=["--weight", "presliding=1e308"],
                            expect={"fit": "outside 0..1e+06", "posterior": "outside 0..1e+06"}),
     # -- format files
@@ -347,7 +351,7 @@ def test_corpus(tmp_path, capsys, name, command):
     inputs.mkdir()
     log = materialise(case, inputs)
     argv = [a.replace("{fmt}", str(inputs / "fmt.json")) for a in case.argv]
-    args = [command, str(log), *argv, *COMMAND_ARGS[command]]
+    args = [command, str(log), *COMMAND_ARGS[command], *argv]
     if command != "inspect":
         args += ["--out", str(tmp_path / "out")]
     before = digests(inputs)
@@ -391,6 +395,30 @@ def test_named_pipe_in_a_real_process(tmp_path):
 
 
 # -- numerical guards ---------------------------------------------------------------------------
+
+@pytest.mark.parametrize("command", ["fit", "posterior"])
+def test_a_spike_the_loader_accepts_gives_a_finite_result_or_names_it(tmp_path, capsys,
+                                                                       command):
+    """The issue's spike at the largest magnitude the loader takes (5e6 N on an 18 N loop): the
+    solver chases it; the run ends with a finite result or with one line naming the spike,
+    never with a result built on inf."""
+    path = tmp_path / "spike.csv"
+    path.write_bytes(cell(502, 3, "5e6"))
+    path.with_suffix(".json").write_text(json.dumps(BASE_SIDECAR))
+    extra = ["--walkers", "12", "--steps", "10", "--check-every", "5"] * (command == "posterior")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        code = main([command, str(path), *extra, "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    if code == 2:
+        assert err.count("\n") == 1 and "force spike of 5e+06 N at line 502" in err, err
+        assert not (tmp_path / "out" / f"{command}.json").exists()
+    else:
+        assert code == 0, err
+        from fitstiff.guards import first_nonfinite
+        assert first_nonfinite(json.loads((tmp_path / "out" / f"{command}.json")
+                                          .read_text())) is None
+
 
 def memory_log(force_at: dict[int, float] | None = None, n: int = 400):
     """A small triangle log made in memory (so the loader's bounds do not apply)."""

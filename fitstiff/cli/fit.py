@@ -123,6 +123,10 @@ def _weights(items):
 
 def fit_options(args) -> dict[str, object]:
     """Keyword arguments of :func:`fitstiff.fitting.fit` from the parsed options."""
+    for flag, value, least in (("--max-steps", args.max_steps, 1), ("--skip", args.skip, 0)):
+        if value < least:
+            raise InputError(None, f"{flag} {value}", f"must be at least {least}",
+                             f"give {least} or more")
     return {"solver": args.solver, "starts": args.starts, "seed": args.seed,
             "max_steps": args.max_steps,
             "denoise": {"auto": "auto", "on": True, "off": False}[args.denoise],
