@@ -30,6 +30,7 @@ __all__ = ["MIN_TRAVEL_M", "check_finite", "check_logs", "first_nonfinite", "lik
 #: a log whose displacement spans less than this did not move (1 nm, below any sensor)
 MIN_TRAVEL_M = 1e-9
 _SPIKE = 1e3          # |value - median| / spread above which a sample is called a spike
+_SHORT_CHAMBER = 1e-6  # m, a closed chamber this short is singular (drive.MIN_CHAMBER_LENGTH)
 
 #: channel -> (Log attribute, display unit, SI per display unit)
 _CHANNELS = (("force", "force", "N", 1.0), ("displacement", "displacement", "mm", 1e-3),
@@ -44,7 +45,8 @@ def _where(log: Log) -> str:
 
 
 def _sample(log: Log, i: int) -> str:
-    """``line 812`` for a log read from a file (header counted), else ``sample 811``."""
+    """Where sample ``i`` is: ``line 812`` for sample 810 of a file with a header row (as
+    the loader counts lines), ``sample 810`` for a log made in memory."""
     if log.path is not None and "header" in log.source:
         return f"line {i + 1 + int(bool(log.source['header']))}"
     return f"sample {i}"
@@ -94,7 +96,7 @@ def _chamber_cause(log: Log) -> tuple[float, str] | None:
                 "dead_length_b_mm"))
     for chamber, length, key in lengths:
         i = int(np.argmin(length))
-        if length[i] < 1e-6:
+        if length[i] < _SHORT_CHAMBER:
             return (math.inf, f"chamber {chamber} closes to {length[i] * 1e3:.3g} mm at "
                               f"{_sample(log, i)} (start_position_mm, stroke_mm and {key}), "
                               "where the gas spring is singular")

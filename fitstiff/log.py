@@ -47,6 +47,11 @@ class RigKey:
     low_open: bool = False       # ``low`` itself is excluded (a stroke > 0)
     example: float = 1.0         # a typical value, shown in messages
 
+    @property
+    def meaning(self) -> str:
+        """``the piston bore diameter``: the help as a noun phrase, for messages."""
+        return "the " + self.help.split(",")[0].removeprefix("x0: ")
+
 
 RIG_KEYS: tuple[RigKey, ...] = (
     RigKey("bore_mm", "bore", 1e-3, "--bore-mm", "piston bore diameter",
@@ -110,7 +115,7 @@ class Rig:
             number = validation.number(value, where=source, what=f"key '{key}' ({spec.flag})",
                                        unit=spec.unit, low=spec.low, high=spec.high,
                                        low_open=spec.low_open, example=spec.example,
-                                       meaning=f"the {spec.help.split(',')[0]}")
+                                       meaning=spec.meaning)
             kwargs[spec.field] = number * spec.scale
         rig = cls(**kwargs)  # type: ignore[arg-type]
         rig._check(source)

@@ -112,8 +112,8 @@ def number(value: object, *, where: str | None, what: str, unit: str = "",
 
     ``low_open`` excludes ``low`` itself (``stroke > 0``). ``meaning`` (e.g. "the piston
     bore diameter"), ``unit`` (e.g. "mm") and ``example`` (a typical value) make the fix of
-    the message. Integers and
-    floats (also numpy scalars) are numbers; booleans, text, lists and objects are not.
+    the message. Integers and floats (also numpy scalars) are numbers; booleans, text, lists
+    and objects are not.
 
     >>> number(32, where="run1.json", what="key 'bore_mm'", unit="mm", low=1, high=1000)
     32.0

@@ -31,7 +31,6 @@ from conftest import REPO
 
 from fitstiff.cli import main
 from fitstiff.errors import InputError
-from fitstiff.loading import load_log
 
 FIG4 = REPO / "data" / "synthetic" / "fig4" / "p6bar_x350mm.csv"
 BASE_LINES = FIG4.read_text().splitlines()          # time_s, displacement_mm, force_N, p_a, p_b

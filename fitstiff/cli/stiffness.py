@@ -85,7 +85,7 @@ def run(args: argparse.Namespace) -> int:
         spec = by_key[key]
         if getattr(args, key) is not None:
             number(getattr(args, key), where=None, what=spec.flag, unit=spec.unit,
-                   high=spec.high, meaning=f"the {spec.help.split(',')[0]}")
+                   high=spec.high, meaning=spec.meaning)
     for flag, value in (("--pressure-a-bar", args.pressure_a_bar),
                         ("--pressure-b-bar", args.pressure_b_bar)):
         if value is not None:
