@@ -9,7 +9,7 @@ from __future__ import annotations
 
 __all__ = ["FitstiffError", "InputError"]
 
-_WHAT_LIMIT, _FOUND_LIMIT = 200, 400   # characters of these parts shown in a message
+_WHAT_LIMIT, _FOUND_LIMIT = 500, 1500   # characters of these parts shown in a message
 
 
 def _clip(text: str, limit: int) -> str:

@@ -272,7 +272,7 @@ def check_load(csv_bytes: bytes, sidecar_bytes: bytes | None, outcomes: collecti
             log = load_log(path, fmt=fmt_path if fmt is not None else None)
         except InputError as exc:
             message = str(exc)
-            assert "\n" not in message and len(message) < 1000, message
+            assert "\n" not in message and len(message) < 2500, message
             outcome = _classify(exc)
         else:
             _check_log(log)
