@@ -20,9 +20,11 @@ depend on which tests ran before in the same process; the fixture below keeps th
 
 from __future__ import annotations
 
+import atexit
 import collections
 import hashlib
 import json
+import shutil
 import tempfile
 import warnings
 from pathlib import Path
@@ -237,6 +239,7 @@ def _same_examples_whatever_ran_before(monkeypatch):
 
 
 WORK = Path(tempfile.mkdtemp(prefix="fitstiff-hypothesis-"))
+atexit.register(shutil.rmtree, WORK, ignore_errors=True)
 
 
 def _digest(path: Path) -> str | None:
