@@ -72,6 +72,7 @@ from typing import Any
 from fitstiff.errors import InputError
 from fitstiff.log import Rig
 from fitstiff.units import Kind, UnitSpec, parse_unit
+from fitstiff.validation import describe_type, parse_decimal, read_json, shown
 
 __all__ = [
     "QUANTITIES", "REQUIRED_QUANTITIES", "EXAMPLE_NAMES", "CHAMBERS", "ColumnSpec", "Format",
@@ -137,6 +138,10 @@ def parse_column_spec(entry: str | Mapping[str, Any], *, where: str | None = Non
     """One mapping entry: a string ``quantity=COLUMN:UNIT[:flip][:scale=K]`` or a dict."""
     if isinstance(entry, Mapping):
         return _spec_from_dict(entry, where=where)
+    if not isinstance(entry, str):
+        raise InputError(where, "column mapping entry", f"found {describe_type(entry)}",
+                         f"write it as {ENTRY_FORM}, or as an object with quantity, column "
+                         "and unit")
     what = f"column mapping entry '{entry}'"
 
     def bad(found: str) -> InputError:
@@ -182,11 +187,14 @@ def parse_columns(entries: Iterable[str | Mapping[str, Any]], *,
 
 def parse_delimiter(text: str, *, where: str | None = None) -> str:
     """A delimiter option: one character, or a name (comma, semicolon, tab, whitespace)."""
+    if not isinstance(text, str):
+        raise InputError(where, "delimiter", f"found {describe_type(text)}",
+                         "give one character or one of: " + ", ".join(DELIMITER_NAMES))
     if text in DELIMITER_NAMES:
         return DELIMITER_NAMES[text]
     if len(text) == 1 and text not in "\r\n\"":
         return text
-    raise InputError(where, "delimiter", f"found {text!r}",
+    raise InputError(where, "delimiter", f"found {shown(text)}",
                      "give one character or one of: " + ", ".join(DELIMITER_NAMES))
 
 
@@ -195,7 +203,7 @@ def parse_vented(value: object, *, where: str | None = None, what: str = "key 'v
     """Chambers open to ambient: a list of ``"a"`` / ``"b"``."""
     items = [value] if isinstance(value, str) else value
     if not isinstance(items, list | tuple) or not all(c in CHAMBERS for c in items):
-        raise InputError(where, what, f"found {value!r}",
+        raise InputError(where, what, f"found {shown(value)}",
                          'give a list of vented chambers, e.g. ["b"] (chambers: "a", "b")')
     return frozenset(items)
 
@@ -226,15 +234,15 @@ class Format:
                                  "comments)")
         columns = values.get("columns", [])
         if not isinstance(columns, list):
-            raise InputError(source, "key 'columns'", f"found {columns!r}",
+            raise InputError(source, "key 'columns'", f"found {shown(columns)}",
                              f"give a list of entries {ENTRY_FORM}")
         no_header = values.get("no_header")
         if no_header is not None and not isinstance(no_header, bool):
-            raise InputError(source, "key 'no_header'", f"found {no_header!r}",
+            raise InputError(source, "key 'no_header'", f"found {shown(no_header)}",
                              "give true or false")
         rig = values.get("rig", {})
         if not isinstance(rig, Mapping):
-            raise InputError(source, "key 'rig'", f"found {rig!r}",
+            raise InputError(source, "key 'rig'", f"found {shown(rig)}",
                              'give an object of rig metadata, e.g. {"bore_mm": 25}')
         rig = {k: v for k, v in rig.items() if not k.startswith("_")}
         Rig.from_mapping(rig, source=source)  # names a bad key or value in the format file
@@ -268,21 +276,20 @@ def load_format(fmt: str | os.PathLike[str] | Format) -> Format:
 
 
 def read_json_object(path: Path) -> dict[str, Any]:
-    """The JSON object in ``path``; malformed JSON is an :class:`InputError` with line/column."""
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(str(path), "file", f"cannot be read ({exc})",
-                         "check the path and that it is a UTF-8 JSON file") from None
-    try:
-        values = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise InputError(str(path), f"line {exc.lineno}, column {exc.colno}",
-                         f"malformed JSON ({exc.msg})", "fix the JSON syntax") from None
+    """The JSON object in ``path`` (a sidecar or a format file), read by
+    :func:`fitstiff.validation.read_json`: malformed JSON is an :class:`InputError` with
+    line/column; a pipe or device, an oversized or deeply nested file, ``NaN`` and repeated
+    keys are refused."""
+    values = read_json(path)
     if not isinstance(values, dict):
-        raise InputError(str(path), "file", f"holds a JSON {type(values).__name__}, not an "
+        raise InputError(str(path), "file", f"holds a JSON {_json_type(values)}, not an "
                          "object", 'write an object, e.g. {"bore_mm": 25}')
     return values
+
+
+def _json_type(value: object) -> str:
+    return {dict: "object", list: "list", str: "string", bool: "boolean", int: "number",
+            float: "number", type(None): "null"}.get(type(value), type(value).__name__)
 
 
 def _formats_dir():
@@ -290,9 +297,8 @@ def _formats_dir():
 
 
 def _number(text: str, *, where: str | None, what: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
+    value = parse_decimal(text)
+    if value is None:
         value = math.nan
     if not math.isfinite(value) or value == 0:
         raise InputError(where, what, f"scale '{text}' is not a finite non-zero number",
@@ -306,13 +312,21 @@ def _spec_from_dict(entry: Mapping[str, Any], *, where: str | None) -> ColumnSpe
     unknown = set(entry) - allowed
     missing = {"quantity", "column", "unit"} - set(entry)
     flip, scale = entry.get("flip", False), entry.get("scale", 1.0)
-    if unknown or missing or not isinstance(flip, bool) or not isinstance(scale, int | float):
+    typed = (isinstance(entry.get("quantity", ""), str) and isinstance(entry.get("unit", ""), str)
+             and isinstance(entry.get("column", ""), str | int)
+             and not isinstance(entry.get("column"), bool))
+    if (unknown or missing or not typed or not isinstance(flip, bool)
+            or isinstance(scale, bool) or not isinstance(scale, int | float)):
         raise InputError(where, what, "is not a valid entry",
                          'give {"quantity": ..., "column": NAME or NUMBER, "unit": ...} with '
                          'optional "flip": true/false and "scale": number, or a string '
                          + ENTRY_FORM)
-    return _spec(str(entry["quantity"]), str(entry["column"]), str(entry["unit"]), flip,
-                 _number(str(scale), where=where, what=what), where=where, what=what)
+    try:
+        scale = float(scale)
+    except OverflowError:          # an integer with hundreds of digits
+        scale = math.inf
+    return _spec(entry["quantity"], str(entry["column"]), entry["unit"], flip,
+                 _number(repr(scale), where=where, what=what), where=where, what=what)
 
 
 def _spec(quantity: str, column: str, unit: str, flip: bool, scale: float, *,
@@ -320,7 +334,9 @@ def _spec(quantity: str, column: str, unit: str, flip: bool, scale: float, *,
     if quantity not in QUANTITIES:
         raise InputError(where, what, f"unknown quantity '{quantity}'",
                          f"use one of: {', '.join(QUANTITIES)}; write it as {ENTRY_FORM}")
-    index: str | int = int(column) if column.isdigit() else column
+    index: str | int = column
+    if column.isascii() and column.isdigit():     # not int('²'), not 5000 digits
+        index = int(column) if len(column) <= 9 else 10**9
     if not index:
         raise InputError(where, what, f"column '{column}' is not a column",
                          f"give a header name or a 1-based column number; {ENTRY_FORM}")

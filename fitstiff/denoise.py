@@ -96,15 +96,26 @@ def segment_velocity(displacement: np.ndarray, time: np.ndarray, reversals: np.n
     idx = np.arange(n)
     lo = np.maximum(idx - m, cuts[seg])
     hi = np.minimum(idx + m, cuts[seg + 1])
-    tc = t - t[0]
-    s1 = np.concatenate([[0.0], np.cumsum(tc)])
-    sx = np.concatenate([[0.0], np.cumsum(x)])
-    stt = np.concatenate([[0.0], np.cumsum(tc * tc)])
-    stx = np.concatenate([[0.0], np.cumsum(tc * x)])
-    cnt = hi - lo + 1
-    st_, sx_ = s1[hi + 1] - s1[lo], sx[hi + 1] - sx[lo]
-    var = (stt[hi + 1] - stt[lo]) - st_ * st_ / cnt
-    cov = (stx[hi + 1] - stx[lo]) - st_ * sx_ / cnt
+    # window sums with time and displacement taken relative to the window's own sample, so
+    # that neither a long log nor a long pause in it (t - t[0] of 1e9 s and more) costs
+    # precision or overflows, as running sums over the whole log would
+    cnt = np.zeros(n)
+    sd = np.zeros(n)
+    sy = np.zeros(n)
+    sdd = np.zeros(n)
+    sdy = np.zeros(n)
+    for j in range(-m, m + 1):
+        k = np.clip(idx + j, 0, n - 1)
+        inside = (idx + j >= lo) & (idx + j <= hi)
+        d = np.where(inside, t[k] - t, 0.0)
+        y = np.where(inside, x[k] - x, 0.0)
+        cnt += inside
+        sd += d
+        sy += y
+        sdd += d * d
+        sdy += d * y
+    var = sdd - sd * sd / cnt
+    cov = sdy - sd * sy / cnt
     with np.errstate(invalid="ignore", divide="ignore"):
         v = np.where(var > 0, cov / var, 0.0)
     return v

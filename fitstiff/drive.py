@@ -23,6 +23,7 @@ import numpy as np
 import equinox as eqx
 
 from fitstiff._jax import jnp
+from fitstiff.errors import InputError
 from fitstiff.log import Log, Rig
 
 __all__ = ["Drive", "make_drive", "drive_from_log", "CHAMBER_MODES"]
@@ -120,6 +121,7 @@ def make_drive(*, displacement, time=None, rig: Rig | None = None, pressure_a=No
                                      needed_for=f"{what} (closed chamber)")
             l_a0 = x0 + (rig.dead_length_a or 0.0)
             l_b0 = stroke - x0 + (rig.dead_length_b or 0.0)
+            _check_chamber_lengths(x, l_a0, l_b0, modes, rig=rig, name=name)
     p0 = (supply if supply is not None else 0.0) + p_amb
     zeros = np.zeros(n)
     return Drive(
@@ -134,6 +136,29 @@ def make_drive(*, displacement, time=None, rig: Rig | None = None, pressure_a=No
         force_offset=jnp.asarray(float(force_offset)),
         modes=(modes[0], modes[1]), observed=(observed[0], observed[1]), has_time=has_time,
         name=name)
+
+
+#: shortest closed-chamber length (m) the polytropic law is evaluated at; shorter is
+#: metal on metal, and the law's pressure would overflow
+MIN_CHAMBER_LENGTH = 1e-6
+
+
+def _check_chamber_lengths(x: np.ndarray, l_a0: float, l_b0: float, modes, *, rig: Rig,
+                           name: str) -> None:
+    """A closed chamber keeps a positive length over the whole log."""
+    for chamber, mode, length, key in (("A", modes[0], l_a0 + x, "dead_length_a_mm"),
+                                       ("B", modes[1], l_b0 - x, "dead_length_b_mm")):
+        if mode != "closed" or not length.size:
+            continue
+        i = int(np.argmin(length))
+        if not length[i] >= MIN_CHAMBER_LENGTH:
+            raise InputError(rig.source or name, f"log '{name}', closed chamber {chamber}",
+                             f"its length (start_position_mm, stroke_mm and {key} with the "
+                             f"displacement) falls to {length[i] * 1e3:.4g} mm at sample {i}, "
+                             "where the gas-spring law is singular",
+                             f"give {key} (the chamber's dead volume / piston area, "
+                             f"--{key.replace('_', '-')}) or check start_position_mm and the "
+                             "displacement sign")
 
 
 def drive_from_log(log: Log, *, needs_chamber: bool = False, needs_supply: bool = True,

@@ -9,6 +9,12 @@ from __future__ import annotations
 
 __all__ = ["FitstiffError", "InputError"]
 
+_WHAT_LIMIT, _FOUND_LIMIT = 500, 1500   # characters of these parts shown in a message
+
+
+def _clip(text: str, limit: int) -> str:
+    return text if len(text) <= limit else text[:limit] + "..."
+
 
 class FitstiffError(Exception):
     """Base class of fitstiff's own errors."""
@@ -27,6 +33,8 @@ class InputError(FitstiffError, ValueError):
     def __init__(self, where: str | None, what: str, found: str | None = None,
                  fix: str | None = None):
         self.where, self.what, self.found, self.fix = where, what, found, fix
+        # what and found can quote anything a user wrote: keep the line readable
+        what, found = _clip(what, _WHAT_LIMIT), found and _clip(found, _FOUND_LIMIT)
         parts = f"{where}: {what}" if where else what
         if found:
             parts += f": {found}"

@@ -33,6 +33,7 @@ import optimistix as optx
 from fitstiff._jax import jax, jnp
 from fitstiff.derived import DERIVED, derived_quantities, split_unit
 from fitstiff.errors import InputError
+from fitstiff.guards import check_finite
 from fitstiff.log import Log
 from fitstiff.model import Model
 from fitstiff.params import Parameterization
@@ -49,6 +50,7 @@ SOLVERS = {
 }
 _CORRELATION_WARNING = 0.95
 _SINGULAR = 1e-7       # relative singular value below which a direction is undetermined
+_RESIDUAL_LIMIT = 1e100  # whitened residuals / Jacobian entries beyond this are refused
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -140,7 +142,7 @@ class FitResult:
             "bic": self.bic,
             "residual_autocorrelation": self.residual_autocorrelation,
             "correlation": {"names": list(self.names[:n_model]),
-                            "matrix": np.where(np.isfinite(corr), corr, np.nan)},
+                            "matrix": [[_finite(c) for c in row] for row in corr]},
             "warnings": list(self.warnings),
             "starts": dict(self.starts),
         }
@@ -358,6 +360,9 @@ def _summarise(problem: Problem, theta, *, converged: bool, message: str, steps:
                solver: str, starts: Mapping[str, int]) -> FitResult:
     ev = problem.cached("summary", lambda: _summary_functions(problem))
     residuals, jac, eiv, values, dphys, d0, g0 = (np.asarray(a) for a in ev(theta))
+    check_finite(problem.logs, "the fit's whitened residuals and Jacobian", residuals, jac,
+                 limit=_RESIDUAL_LIMIT)
+    check_finite(problem.logs, "the fitted parameter values", values, dphys)
     n_data, n_par = problem.n_data, problem.size
     cost = float(residuals @ residuals)
     s2 = cost / max(n_data - n_par, 1)
@@ -384,6 +389,7 @@ def _summarise(problem: Problem, theta, *, converged: bool, message: str, steps:
 
     # physical values and their covariance (delta method through the transforms)
     cov = dphys @ cov_theta @ dphys.T
+    check_finite(problem.logs, "the fit's covariance", cov)
     stderr = np.sqrt(np.clip(np.diag(cov), 0, None))
     stderr[undetermined] = np.nan
     corr = _correlation(cov[:problem.par.size, :problem.par.size])

@@ -33,6 +33,7 @@ import csv
 import dataclasses
 import hashlib
 import os
+import re
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -46,6 +47,8 @@ from fitstiff.columns import (CHAMBERS, ENTRY_FORM, EXAMPLE_NAMES, QUANTITIES,
 from fitstiff.errors import InputError
 from fitstiff.log import Log, Rig
 from fitstiff.units import parse_unit
+from fitstiff.validation import (CHANNEL_LIMITS, MIN_TIME_STEP_S, exists, is_decimal,
+                                 regular_file)
 
 __all__ = ["MIN_SAMPLES", "load_log", "load_logs"]
 
@@ -56,6 +59,9 @@ _LOOKALIKE = ("\t", ";", ",", "|", " ")      # delimiters recognised in a one-co
 _OVERRIDE_SOURCE = "command-line overrides"
 
 ColumnEntries = Sequence[str | Mapping[str, Any]]
+#: every line a plain decimal (one pass over a whole column; the cell loop finds the culprit)
+_DECIMAL_LINES = re.compile(r"(?:[ \t\r\f\v]*[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)"
+                            r"(?:[eE][+-]?[0-9]+)?[ \t\r\f\v]*\n)*")
 
 
 def load_log(path: str | os.PathLike[str], *, columns: ColumnEntries | None = None,
@@ -121,7 +127,7 @@ def _rig(path: Path, layout: Format, overrides: Mapping[str, object]
          ) -> tuple[Rig, frozenset[str], Path | None]:
     """Rig metadata and vented chambers: format ``rig`` < sidecar < overrides."""
     sidecar = path.with_suffix(".json")
-    has_sidecar = sidecar.is_file()
+    has_sidecar = exists(sidecar)     # a pipe or directory in its place is an error, not absent
     rig_values = dict(layout.rig)
     vented = layout.vented or frozenset()
     for layer, source in ((read_json_object(sidecar) if has_sidecar else {}, str(sidecar)),
@@ -162,6 +168,7 @@ class _Table:
 
 
 def _read(path: Path) -> bytes:
+    regular_file(path)      # a named pipe or a device would block the read
     try:
         return path.read_bytes()
     except OSError as exc:
@@ -191,6 +198,11 @@ def _lines(raw: bytes, where: str) -> list[str]:
     return lines
 
 
+def _q(text: str) -> str:
+    """``repr`` of a cell or line for a message, shortened when long (one line stays short)."""
+    return repr(text) if len(text) <= 40 else f"{text[:30]!r}... ({len(text)} characters)"
+
+
 def _show(delimiter: str) -> str:
     return {"\t": "tab", " ": WHITESPACE, WHITESPACE: WHITESPACE}.get(delimiter, f"'{delimiter}'")
 
@@ -199,11 +211,20 @@ def _split(lines: list[str], delimiter: str, *, where: str, first_line: int) -> 
     if delimiter == WHITESPACE:
         return [line.split() for line in lines]
     reader = csv.reader(lines, delimiter=delimiter, strict=True)
+    rows, start = [], 1       # start: the line (of ``lines``) the next row begins on
     try:
-        return list(reader)
+        for row in reader:
+            rows.append(row)
+            start = reader.line_num + 1
     except csv.Error as exc:
-        raise InputError(where, f"line {first_line + reader.line_num - 1}", f"{exc}",
-                         "fix the quoting of this line") from None
+        found, fix = str(exc), "fix the quoting of this line"
+        if reader.line_num > start:     # a quote opened on line ``start`` runs on
+            found = f"a quoted cell opened on this line is not closed ({exc})"
+        elif "field limit" in found:
+            found = f"a cell is longer than {csv.field_size_limit()} characters"
+            fix = "check the delimiter and the quoting (no number is that long)"
+        raise InputError(where, f"line {first_line + start - 1}", found, fix) from None
+    return rows
 
 
 def _is_number(text: str) -> bool:
@@ -244,7 +265,7 @@ def _check_shape(table: _Table, *, first: str) -> None:
     if table.width == 1:
         seen = next((d for d in _LOOKALIKE if d != table.delimiter and d in first.strip()), None)
         if seen is not None:
-            raise InputError(table.where, "line 1", f"reads as a single column {first!r} with "
+            raise InputError(table.where, "line 1", f"reads as a single column {_q(first)} with "
                              f"delimiter {_show(table.delimiter)}",
                              f"the file looks {_show(seen)}-separated: pass --delimiter "
                              f"{_show(seen)}")
@@ -340,28 +361,62 @@ def _mapped(table: _Table, mapping: Mapping[str, ColumnSpec]) -> dict[str, _Colu
 # ----------------------------------------------------------------------------------- values
 
 def _values(table: _Table, column: _Column, *, no_header: bool) -> np.ndarray:
-    """The column's numbers as written in the file; the first bad cell is an error."""
+    """The column's numbers as written in the file; the first bad cell is an error.
+
+    A cell is a plain decimal number with an optional exponent (:func:`is_decimal`):
+    ``float`` would also take ``1_000``, ``nan``, ``infinity`` or non-ASCII digits.
+    """
     cells = [row[column.index] for row in table.rows]
-    try:
-        values = np.fromiter((float(c) for c in cells), dtype=np.float64, count=len(cells))
-    except ValueError:
-        i = next(i for i, c in enumerate(cells) if not _is_number(c))
+    i = None
+    if _DECIMAL_LINES.fullmatch("\n".join(cells) + "\n") is None:
+        i = next((i for i, c in enumerate(cells) if not is_decimal(c)), None)
+    if i is not None:
         fix = "make every cell of this column a number"
         if not cells[i].strip():
             found = "the cell is empty"
             fix = "fill it in or remove the row"
+        elif _is_number(cells[i]) and not np.isfinite(float(cells[i])):
+            found = f"found {_q(cells[i])}, not a finite number"
+            fix = "replace it with a measured value or remove the row"
+        elif _is_number(cells[i]):
+            found = f"found {_q(cells[i])}, not a plain decimal number"
+            fix = ("write digits with an optional decimal point and exponent, e.g. 1000 or "
+                   "1.5e3 (no digit separators, words or non-ASCII digits)")
         else:
-            found = f"found {cells[i]!r}, not a number"
+            found = f"found {_q(cells[i])}, not a number"
             if "," in cells[i] and _is_number(cells[i].replace(",", ".")):
                 fix = "use a decimal point, not a decimal comma"
             elif i == 0 and no_header:
                 fix = "line 1 looks like a header: drop --no-header (no_header=False)"
-        raise _at(table, column, i, found, fix) from None
+        raise _at(table, column, i, found, fix)
+    try:
+        values = np.fromiter((float(c) for c in cells), dtype=np.float64, count=len(cells))
+    except ValueError:      # cannot happen for plain decimals; never a traceback if it does
+        i = next(i for i, c in enumerate(cells) if not _is_number(c))
+        raise _at(table, column, i, f"found {_q(cells[i])}, not a number",
+                  "make every cell of this column a number") from None
     bad = np.flatnonzero(~np.isfinite(values))
-    if bad.size:
-        raise _at(table, column, bad[0], f"found {cells[bad[0]]!r}, not a finite number",
+    if bad.size:            # an exponent beyond the float range: 1e999
+        raise _at(table, column, bad[0], f"found {_q(cells[bad[0]])}, not a finite number",
                   "replace it with a measured value or remove the row")
     return values
+
+
+def _check_magnitude(table: _Table, column: _Column, si: np.ndarray) -> None:
+    """Every SI value within the channel's physical bound (:data:`CHANNEL_LIMITS`)."""
+    limit = CHANNEL_LIMITS[column.spec.quantity]
+    with np.errstate(over="ignore", invalid="ignore"):
+        bad = np.flatnonzero(~(np.abs(si) <= limit.bound))
+    if bad.size:
+        i = int(bad[0])
+        spec = column.spec
+        scaled = f" (unit '{spec.unit.text}'" + (f", scale {spec.scale:g}" if spec.scale != 1
+                                                 else "") + ")"
+        absolute = " absolute" if spec.quantity.startswith("p_") else ""
+        raise _at(table, column, i, f"found {_q(_cell(table, column, i))}{scaled} = "
+                  f"{si[i]:.4g} {limit.unit}{absolute}, beyond the plausible magnitude of a "
+                  f"{spec.quantity.replace('p_', 'pressure ')} channel, {limit.describe()}",
+                  "correct the cell or remove the row, and check the column's unit")
 
 
 def _at(table: _Table, column: _Column, i: int, found: str, fix: str) -> InputError:
@@ -377,11 +432,21 @@ def _check_time(table: _Table, column: _Column, time: np.ndarray) -> None:
     bad = np.flatnonzero(~(np.diff(time) > 0))
     if bad.size:
         i = int(bad[0])
-        raise _at(table, column, i + 1, f"time does not increase: {_cell(table, column, i)!r} "
-                  f"on line {table.line(i)}, then {_cell(table, column, i + 1)!r} on line "
+        raise _at(table, column, i + 1, f"time does not increase: {_q(_cell(table, column, i))} "
+                  f"on line {table.line(i)}, then {_q(_cell(table, column, i + 1))} on line "
                   f"{table.line(i + 1)}",
                   "time must increase strictly: correct or remove the offending row (the "
                   "loader never drops or reorders rows)")
+
+
+def _check_time_step(table: _Table, column: _Column, time: np.ndarray) -> None:
+    short = np.flatnonzero(np.diff(time) < MIN_TIME_STEP_S)
+    if short.size:
+        i = int(short[0])
+        raise _at(table, column, i + 1, f"the time step from line {table.line(i)} is "
+                  f"{time[i + 1] - time[i]:.3g} s, shorter than {MIN_TIME_STEP_S:g} s (1 GHz "
+                  "sampling)", f"check the time unit ('{column.spec.unit.text}') and the "
+                  "cells (a sampling that fast is not a force log)")
 
 
 def _check_pressure(table: _Table, column: _Column, pressure: np.ndarray) -> None:
@@ -390,7 +455,7 @@ def _check_pressure(table: _Table, column: _Column, pressure: np.ndarray) -> Non
         i = int(bad[0])
         unit = column.spec.unit
         kind = "absolute" if unit.absolute else "gauge"
-        raise _at(table, column, i, f"found {_cell(table, column, i)!r} ({kind}) = "
+        raise _at(table, column, i, f"found {_q(_cell(table, column, i))} ({kind}) = "
                   f"{pressure[i] / 1e5:.4g} bar absolute, below vacuum",
                   f"check the unit ('{unit.text}') and whether the column is gauge or absolute "
                   "(absolute: unit ending in _abs), the sign (:flip) and ambient_bar "
@@ -404,7 +469,7 @@ def _check_stroke(table: _Table, column: _Column, displacement: np.ndarray, rig:
     bad = np.flatnonzero((x < 0) | (x > rig.stroke))
     if bad.size:
         i = int(bad[0])
-        raise _at(table, column, i, f"found {_cell(table, column, i)!r}: x = x0 + displacement "
+        raise _at(table, column, i, f"found {_q(_cell(table, column, i))}: x = x0 + displacement "
                   f"= {x[i] * 1e3:.4g} mm, outside the stroke 0..{rig.stroke * 1e3:.4g} mm",
                   "check the displacement unit and sign (:flip), start_position_mm "
                   "(--start-position-mm) and stroke_mm (--stroke-mm)")
@@ -423,15 +488,19 @@ def _load(path: Path, layout: Format, overrides: dict[str, object]) -> Log:
     found = _columns(table, layout.columns)
     rig, vented, sidecar = _rig(path, layout, overrides)
 
-    si = {q: _values(table, c, no_header=no_header) * c.spec.factor for q, c in found.items()}
+    si = {}
+    for quantity, column in found.items():
+        with np.errstate(over="ignore"):
+            si[quantity] = _values(table, column, no_header=no_header) * column.spec.factor
+            if quantity.startswith("p_") and not column.spec.unit.absolute:
+                si[quantity] = si[quantity] + rig.ambient_pressure      # stored absolute
+        _check_magnitude(table, column, si[quantity])
     if "time" in si:
         _check_time(table, found["time"], si["time"])
+        _check_time_step(table, found["time"], si["time"])
     for chamber in CHAMBERS:
-        quantity = f"p_{chamber}"
-        if quantity in si and not found[quantity].spec.unit.absolute:
-            si[quantity] = si[quantity] + rig.ambient_pressure
-        if quantity in si:
-            _check_pressure(table, found[quantity], si[quantity])
+        if f"p_{chamber}" in si:
+            _check_pressure(table, found[f"p_{chamber}"], si[f"p_{chamber}"])
     _check_stroke(table, found["displacement"], si["displacement"], rig)
 
     notes = []

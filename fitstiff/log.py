@@ -17,6 +17,7 @@ from types import MappingProxyType
 
 import numpy as np
 
+from fitstiff import validation
 from fitstiff.errors import InputError
 
 __all__ = ["Log", "Rig", "RIG_KEYS", "RigKey", "STANDARD_AMBIENT_PA"]
@@ -26,30 +27,55 @@ STANDARD_AMBIENT_PA = 101_325.0
 
 @dataclasses.dataclass(frozen=True)
 class RigKey:
-    """One rig-metadata key: sidecar name, field on :class:`Rig`, SI scale, CLI flag."""
+    """One rig-metadata key: sidecar name, field on :class:`Rig`, SI scale, CLI flag, and the
+    physically plausible range of its value (in ``unit``, the key's own unit).
+
+    The range is checked wherever the value comes from (sidecar, format file, command line,
+    a Python mapping), by :func:`fitstiff.validation.number`. It is wide - every real cylinder
+    fits - and its point is to refuse what no cylinder has (a 1e300 mm bore, a bore given in
+    metres) before a computation overflows on it.
+    """
 
     key: str          # sidecar / JSON name, engineering units (e.g. "bore_mm")
     field: str        # Rig field, SI
     scale: float      # SI value = sidecar value * scale
     flag: str         # command-line override
     help: str
+    unit: str = ""    # the unit of the sidecar value ("mm", "bar", "kg")
+    low: float | None = None     # plausible range in ``unit``
+    high: float | None = None
+    low_open: bool = False       # ``low`` itself is excluded (a stroke > 0)
+    example: float = 1.0         # a typical value, shown in messages
+
+    @property
+    def meaning(self) -> str:
+        """``the piston bore diameter``: the help as a noun phrase, for messages."""
+        return "the " + self.help.split(",")[0].removeprefix("x0: ")
 
 
 RIG_KEYS: tuple[RigKey, ...] = (
-    RigKey("bore_mm", "bore", 1e-3, "--bore-mm", "piston bore diameter"),
-    RigKey("rod_mm", "rod", 1e-3, "--rod-mm", "rod diameter on the B side (0 = rodless)"),
-    RigKey("stroke_mm", "stroke", 1e-3, "--stroke-mm", "stroke length"),
+    RigKey("bore_mm", "bore", 1e-3, "--bore-mm", "piston bore diameter",
+           "mm", 1.0, 1000.0, example=32.0),
+    RigKey("rod_mm", "rod", 1e-3, "--rod-mm", "rod diameter on the B side (0 = rodless)",
+           "mm", 0.0, 1000.0, example=0.0),
+    RigKey("stroke_mm", "stroke", 1e-3, "--stroke-mm", "stroke length",
+           "mm", 0.0, 50_000.0, low_open=True, example=700.0),
     RigKey("dead_length_a_mm", "dead_length_a", 1e-3, "--dead-length-a-mm",
-           "dead volume of chamber A divided by its area"),
+           "dead volume of chamber A divided by its area", "mm", 0.0, 100_000.0, example=0.0),
     RigKey("dead_length_b_mm", "dead_length_b", 1e-3, "--dead-length-b-mm",
-           "dead volume of chamber B divided by its area"),
+           "dead volume of chamber B divided by its area", "mm", 0.0, 100_000.0, example=0.0),
     RigKey("start_position_mm", "start_position", 1e-3, "--start-position-mm",
-           "x0: length of chamber A at the start of the log"),
+           "x0: length of chamber A at the start of the log", "mm", 0.0, 50_000.0,
+           example=350.0),
+    # gauge: the lower limit is vacuum, -ambient_bar, checked with the ambient pressure
     RigKey("supply_bar", "supply_pressure", 1e5, "--supply-bar",
-           "gauge pressure at which both chambers were closed"),
+           "gauge pressure at which both chambers were closed", "bar", None, 1000.0,
+           example=6.0),
     RigKey("ambient_bar", "ambient_pressure", 1e5, "--ambient-bar",
-           "ambient (absolute) pressure, default 1.01325"),
-    RigKey("load_kg", "load_mass", 1.0, "--load-kg", "moving mass carried by the piston"),
+           "ambient (absolute) pressure, default 1.01325", "bar", 0.01, 10.0,
+           example=1.01325),
+    RigKey("load_kg", "load_mass", 1.0, "--load-kg", "moving mass carried by the piston",
+           "kg", 0.0, 100_000.0, example=2.0),
 )
 _BY_FIELD = {k.field: k for k in RIG_KEYS}
 _BY_KEY = {k.key: k for k in RIG_KEYS}
@@ -85,15 +111,12 @@ class Rig:
                                  f"use one of: {known}")
             if value is None:
                 continue
-            try:
-                number = float(value)  # type: ignore[arg-type]
-            except (TypeError, ValueError):
-                raise InputError(source, f"key '{key}'", f"found {value!r}",
-                                 "give a number") from None
-            if not np.isfinite(number):
-                raise InputError(source, f"key '{key}'", f"found {value!r}",
-                                 "give a finite number")
-            kwargs[_BY_KEY[key].field] = number * _BY_KEY[key].scale
+            spec = _BY_KEY[key]
+            number = validation.number(value, where=source, what=f"key '{key}' ({spec.flag})",
+                                       unit=spec.unit, low=spec.low, high=spec.high,
+                                       low_open=spec.low_open, example=spec.example,
+                                       meaning=spec.meaning)
+            kwargs[spec.field] = number * spec.scale
         rig = cls(**kwargs)  # type: ignore[arg-type]
         rig._check(source)
         return rig

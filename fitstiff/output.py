@@ -2,7 +2,9 @@
 
 Every command that writes takes ``--out DIR``, writes each file atomically (temporary file in
 the same directory, then ``os.replace``), never overwrites an input, and records a
-``manifest.json`` in DIR: version, command, inputs with their SHA-256, seed.
+``manifest.json`` in DIR: version, command, inputs with their SHA-256, seed. A JSON result
+holds finite numbers only (``None`` where a value is not determined): :meth:`OutputDir.write_json`
+refuses one with an inf or NaN in it.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from fitstiff.errors import InputError
+from fitstiff.guards import first_nonfinite
 
 __all__ = ["OutputDir", "sha256_file", "to_jsonable", "write_atomic"]
 
@@ -111,6 +114,19 @@ class OutputDir:
         return target
 
     def write_json(self, name: str, obj) -> Path:
+        """Write ``obj`` as JSON, after checking that every number in it is finite.
+
+        A result built on an overflow (an inf or NaN anywhere in ``obj``) is refused with an
+        :class:`InputError` naming the entry, and nothing is written; a value that is not
+        determined must be ``None`` (JSON null), set so by its producer.
+        """
+        hit = first_nonfinite(obj)
+        if hit is not None:
+            entry, value = hit
+            raise InputError(str(self.path / name), f"entry '{entry}'",
+                             f"is {value}, so the result is not written",
+                             "a log probably holds extreme values the model cannot follow: "
+                             "check each channel's range with fitstiff inspect")
         return self.write_bytes(name, json.dumps(to_jsonable(obj), indent=2, allow_nan=False)
                                 + "\n")
 

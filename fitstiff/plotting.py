@@ -524,7 +524,9 @@ def plot_autocorr(ax: Axes, chain: ArrayLike, name: str, *, points: int = 12) ->
         raise InputError(None, f"chain of '{name}'", f"has {values.shape[0]} steps",
                          "give at least 10 steps")
     lengths = np.unique(np.geomspace(10, values.shape[0], points).astype(int))
-    tau = [float(integrated_time(values[:m, :, None], tol=0, quiet=True)[0]) for m in lengths]
+    with np.errstate(invalid="ignore", divide="ignore"):      # NaN where nothing moved
+        tau = [float(integrated_time(values[:m, :, None], tol=0, quiet=True)[0])
+               for m in lengths]
     ax.loglog(lengths, tau, "o-", color="tab:blue", label=f"tau estimate, {name}")
     ax.loglog(lengths, lengths / _AUTOCORR_RUNS, "k--", lw=1, label=f"N / {_AUTOCORR_RUNS}")
     ax.set_xlabel("chain length N [steps]")

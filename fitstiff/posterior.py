@@ -82,6 +82,7 @@ from fitstiff._jax import jax, jnp
 from fitstiff.derived import DERIVED, derived_quantities, split_unit
 from fitstiff.errors import InputError
 from fitstiff.fitting import FitResult, fit_problem
+from fitstiff.guards import nonfinite_error
 from fitstiff.likelihood import Layout, NoiseModel, TurningPoints, noise_from_dict
 from fitstiff.log import Log
 from fitstiff.model import Model
@@ -153,8 +154,9 @@ class Diagnostics:
     def to_dict(self) -> dict[str, object]:
         return {"acceptance_fraction": float(np.mean(self.acceptance_fraction)),
                 "acceptance_fraction_min": float(np.min(self.acceptance_fraction)),
-                "autocorr_time": dict(self.autocorr_time),
-                "effective_samples": dict(self.effective_samples),
+                # None where not estimated (a coordinate that never moved: see reason)
+                "autocorr_time": {k: _or_none(v) for k, v in self.autocorr_time.items()},
+                "effective_samples": {k: _or_none(v) for k, v in self.effective_samples.items()},
                 "converged": self.converged, "reason": self.reason, "steps": self.steps,
                 "walkers": self.walkers, "discard": self.discard, "thin": self.thin,
                 "tau_multiple": self.tau_multiple, "noise_model": self.noise_model}
@@ -212,6 +214,14 @@ class Posterior:
         i = self.names.index(name)
         return _summary(self.flat(name) / self.priors.scales[i], unit=self.priors.units[name])
 
+    def _defined_summary(self, name: str) -> dict[str, object]:
+        """:meth:`summary`, with None for the numbers of a quantity the model does not define
+        (NaN in every sample, e.g. the breakaway of a model without friction)."""
+        summary = self.summary(name)
+        if np.isfinite(self.flat(name)).any():
+            return summary
+        return {k: (None if k != "unit" else v) for k, v in summary.items()}
+
     def interval(self, name: str) -> tuple[float, float]:
         """The central 90 % interval ``(q05, q95)`` in display units."""
         s = self.summary(name)
@@ -230,7 +240,7 @@ class Posterior:
         out: dict[str, object] = {
             "model": problem.model.spec,
             "parameters": parameters,
-            "derived": {k: self.summary(k) for k in self.derived},
+            "derived": {k: self._defined_summary(k) for k in self.derived},
             "nuisances": nuisances,
             "diagnostics": self.diagnostics.to_dict(),
             "noise": {"model": self.noise.to_dict(),
@@ -297,6 +307,10 @@ class Posterior:
         for name, unit in units.items():
             idata.posterior[name].attrs["unit"] = unit
         return idata
+
+
+def _or_none(value: float) -> float | None:
+    return float(value) if math.isfinite(value) else None
 
 
 def _summary(values: np.ndarray, *, unit: str) -> dict[str, object]:
@@ -513,7 +527,7 @@ def _start(fit: FitResult, problem: Problem, log_prob: LogPosterior, walkers: in
         if outside:
             raise InputError(None, "--priors", "the least-squares optimum has zero prior "
                              f"density in {', '.join(outside)}", "widen those priors")
-        raise FloatingPointError("the log-posterior is not finite at the least-squares optimum")
+        raise nonfinite_error(problem.logs, "the log-posterior at the least-squares optimum")
     jac = np.asarray(jax.jacfwd(problem.physical)(jnp.asarray(theta)))
     cov = np.nan_to_num(np.asarray(fit.covariance, dtype=float))
     inv = np.linalg.pinv(jac)
@@ -530,8 +544,8 @@ def _start(fit: FitResult, problem: Problem, log_prob: LogPosterior, walkers: in
         z = rng.standard_normal((int(bad.sum()), theta.size))
         coords[bad] = theta + _BALL * (z @ root.T + sd_floor * rng.standard_normal(z.shape))
         lp[bad] = log_prob(coords[bad])
-    raise FloatingPointError("could not place the walkers: the log-posterior is not finite "
-                             "around the least-squares optimum")
+    raise nonfinite_error(problem.logs, "the log-posterior around the least-squares optimum "
+                          "(no place for the walkers)")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -571,11 +585,18 @@ def _run_chunks(sampler: emcee.EnsembleSampler, state, *, names: Sequence[str], 
     return check
 
 
+def _integrated_time(chain: np.ndarray) -> np.ndarray:
+    """emcee's autocorrelation time per coordinate; NaN (without numpy's 0/0 warning) for a
+    coordinate that never moved, which :func:`_convergence` reports."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return emcee.autocorr.integrated_time(chain, tol=0, quiet=True)
+
+
 def _convergence(sampler: emcee.EnsembleSampler, names: Sequence[str], tau_multiple: float,
                  check_every: int) -> _Check:
     chain = sampler.get_chain()
     n = chain.shape[0]
-    tau = emcee.autocorr.integrated_time(chain, tol=0, quiet=True)
+    tau = _integrated_time(chain)
     worst = int(np.nanargmax(tau)) if np.isfinite(tau).any() else 0
     tau_max = float(tau[worst])
     if not np.isfinite(tau_max):
@@ -589,8 +610,9 @@ def _convergence(sampler: emcee.EnsembleSampler, names: Sequence[str], tau_multi
     if previous <= 0:
         return _Check(False, "one check only: the autocorrelation times are not yet known to "
                              "be stable", tau, n)
-    before = emcee.autocorr.integrated_time(chain[:previous], tol=0, quiet=True)
-    change = np.abs(tau - before) / tau
+    before = _integrated_time(chain[:previous])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        change = np.abs(tau - before) / tau
     if np.nanmax(change) > _TAU_STABLE:
         k = int(np.nanargmax(change))
         return _Check(False, f"the autocorrelation time of {names[k]} changed by "

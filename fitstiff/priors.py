@@ -40,7 +40,6 @@ values in the parameter's display unit::
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 import os
 from collections.abc import Mapping
@@ -52,6 +51,7 @@ from fitstiff._jax import jnp
 from fitstiff.errors import InputError
 from fitstiff.params import Parameterization, named_params
 from fitstiff.problem import Problem
+from fitstiff.validation import describe_type, read_json, shown
 
 __all__ = ["DISTRIBUTIONS", "Prior", "Priors", "load_priors"]
 
@@ -105,11 +105,11 @@ class Prior:
         """Validate one JSON entry (see the module docstring)."""
         what = f"prior '{name}'"
         if not isinstance(data, Mapping):
-            raise InputError(where, what, f"found {data!r}",
+            raise InputError(where, what, f"found {describe_type(data)}",
                              'give an object such as {"dist": "normal", "mean": 1, "sd": 0.1}')
         dist = data.get("dist")
         if dist not in DISTRIBUTIONS:
-            raise InputError(where, what, f"unknown dist {dist!r}",
+            raise InputError(where, what, f"unknown dist {shown(dist)}",
                              f"use one of: {', '.join(DISTRIBUTIONS)}")
         wanted = DISTRIBUTIONS[dist]
         extra = set(data) - set(wanted) - {"dist", "unit"}
@@ -121,14 +121,14 @@ class Prior:
                              f"'{dist}' takes {', '.join(wanted) or 'no arguments'}")
         given_unit = data.get("unit", unit)
         if given_unit != unit:
-            raise InputError(where, what, f"unit {given_unit!r} differs from the parameter's "
+            raise InputError(where, what, f"unit {shown(given_unit)} differs from the parameter's "
                              f"display unit {unit!r}", f"write the values in {unit}")
         args = []
         for key in wanted:
             value = data[key]
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not (
                     math.isfinite(value) or (key == "upper" and value == math.inf)):
-                raise InputError(where, f"{what}, '{key}'", f"found {value!r}",
+                raise InputError(where, f"{what}, '{key}'", f"found {describe_type(value)}",
                                  "give a finite number")
             args.append(float(value))
         _check_args(dist, args, where=where, what=what)
@@ -152,14 +152,8 @@ def _check_args(dist: str, args: list[float], *, where: str | None, what: str) -
 def load_priors(path: str | os.PathLike) -> dict[str, Mapping[str, object]]:
     """Read a priors JSON file (validated against a problem by :class:`Priors`)."""
     path = Path(path)
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise InputError(str(path), "--priors", f"cannot be read ({exc.strerror})",
-                         "give an existing JSON file") from None
-    except json.JSONDecodeError as exc:
-        raise InputError(str(path), f"--priors, line {exc.lineno}", f"invalid JSON ({exc.msg})",
-                         'write an object such as {"sigma0": {"dist": "flat"}}') from None
+    data = read_json(path, what="--priors",
+                     example='{"sigma0": {"dist": "normal", "mean": 40, "sd": 10}}')
     if not isinstance(data, dict):
         raise InputError(str(path), "--priors", f"found a JSON {type(data).__name__}",
                          "write an object keyed by parameter name")

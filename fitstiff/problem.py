@@ -31,6 +31,7 @@ from fitstiff._jax import jax, jnp
 from fitstiff.denoise import denoise_displacement, reversal_samples, segment_velocity
 from fitstiff.drive import Drive, drive_from_log
 from fitstiff.errors import InputError
+from fitstiff.guards import check_logs
 from fitstiff.log import Log
 from fitstiff.model import Model, build_model, parse_spec
 from fitstiff.params import Parameterization, find_param, named_params
@@ -110,6 +111,7 @@ class Problem:
                              "is not an optional nuisance",
                              f"use one of: {', '.join(OPTIONAL_NUISANCES)}")
         self.logs = list(logs)
+        check_logs(self.logs)
         self.segmentations: list[Segmentation] = [segment(log) for log in self.logs]
         spec = model if isinstance(model, str) else model.spec
         names = [n for n, _ in parse_spec(spec)]

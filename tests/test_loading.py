@@ -344,8 +344,9 @@ def test_bad_input_gives_one_clear_message(tmp_path, lines, options, sidecar, fr
 
 def test_bad_override_names_the_command_line(tmp_path):
     message = error_message(write(tmp_path, good_lines()), rig_overrides={"bore_mm": -3})
-    assert message == ("command-line overrides: rig metadata 'bore_mm': found -3; "
-                       "give a positive value")
+    assert message == ("command-line overrides: key 'bore_mm' (--bore-mm): found -3 mm, "
+                       "outside the plausible range (from 1 to 1000 mm); give the piston bore "
+                       "diameter in mm (check the unit and the decimal point)")
 
 
 def test_missing_file(tmp_path):

@@ -264,14 +264,19 @@ BASE = ["--bore-mm", "32", "--stroke-mm", "700", "--supply-bar", "6"]
      "displacement (--displacement-mm): 20 mm from 690 mm moves the piston to 710 mm"),
     (["--n", "2"], "polytropic exponent (--n): found 2; give a value from 1 (isothermal) to "
                    "1.67 (adiabatic; 1.4 for air)"),
-    (["--n", "nan"], "polytropic exponent (--n): found nan; give a finite number"),
+    (["--n", "nan"], "argument --n: found 'nan', not a plain decimal number"),
     (["--supply-bar", "-1.5"], "closing pressure of chamber A (--supply-bar): found -1.5 bar "
                                "gauge, at or below vacuum (ambient 1.01325 bar); give a gauge "
                                "pressure above -1.01325 bar"),
     (["--pressure-b-bar", "-2"], "closing pressure of chamber B (--pressure-b-bar)"),
     (["--ambient-bar", "0"], "ambient pressure (--ambient-bar): found 0 bar"),
     (["--table", "0"], "number of table positions (--table): found 0"),
-    (["--bore-mm", "abc"], "argument --bore-mm: invalid float value: 'abc'"),
+    (["--bore-mm", "abc"], "argument --bore-mm: found 'abc', not a plain decimal number"),
+    (["--bore-mm", "1_000"], "argument --bore-mm: found '1_000', not a plain decimal number"),
+    (["--bore-mm", "1e300"], "--bore-mm: found 1e+300 mm, outside the plausible range (at most "
+                             "1000 mm); give the piston bore diameter in mm"),
+    (["--supply-bar", "1e300"], "--supply-bar: found 1e+300 bar, outside"),
+    (["--pressure-b-bar", "1e300"], "--pressure-b-bar: found 1e+300 bar, outside"),
     (["--table", "3", "--position-mm", "3"], "not allowed with argument"),
 ])
 def test_cli_bad_input_is_one_line_and_exit_2(capsys, args, fragment):

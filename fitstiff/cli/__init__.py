@@ -11,6 +11,9 @@ import argparse
 import importlib
 import os
 import sys
+import traceback
+import warnings
+from pathlib import Path
 
 from fitstiff import __version__
 from fitstiff.errors import InputError
@@ -60,6 +63,27 @@ def _enable_compilation_cache() -> None:
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.2)
 
 
+#: numpy's floating-point and empty-reduction warnings (the messages start with these)
+_NUMERIC_WARNINGS = (r"(overflow|invalid value|divide by zero|underflow) encountered|"
+                     r"Mean of empty slice|Degrees of freedom|All-NaN slice")
+
+
+def _numeric_message(args: argparse.Namespace, exc: RuntimeWarning) -> str:
+    """One line for a floating-point warning turned error: the inputs, the operation and
+    where in fitstiff it happened, and what to check."""
+    frames = traceback.extract_tb(exc.__traceback__)
+    ours = [f for f in frames if f"{os.sep}fitstiff{os.sep}" in f.filename]
+    at = ""
+    if ours:
+        frame = ours[-1]
+        at = f" in {Path(frame.filename).name}:{frame.lineno}"
+    inputs = ", ".join(str(p) for p in (getattr(args, "logs", None) or [])) or "the input"
+    message = " ".join(str(exc).split())
+    return (f"{inputs}: numerical problem: {message}{at}; the data or rig values are too "
+            "extreme to compute with: check each channel's range and the rig metadata with "
+            "fitstiff inspect")
+
+
 def main(argv: list[str] | None = None) -> int:
     _enable_compilation_cache()
     parser = build_parser()
@@ -68,9 +92,16 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 2
     try:
-        return int(args.func(args) or 0)
+        with warnings.catch_warnings():
+            # a floating-point warning means a computation met values it cannot handle:
+            # stop there (a result built on inf or NaN is never written) and say so
+            warnings.filterwarnings("error", message=_NUMERIC_WARNINGS, category=RuntimeWarning)
+            return int(args.func(args) or 0)
     except InputError as exc:
         sys.stderr.write(f"fitstiff {args.command}: error: {exc}\n")
+        return 2
+    except RuntimeWarning as exc:
+        sys.stderr.write(f"fitstiff {args.command}: error: {_numeric_message(args, exc)}\n")
         return 2
     except KeyboardInterrupt:
         sys.stderr.write(f"fitstiff {args.command}: interrupted\n")

@@ -20,6 +20,7 @@ from pathlib import Path
 from fitstiff.columns import CHAMBERS, ENTRY_FORM, bundled_formats
 from fitstiff.loading import load_logs
 from fitstiff.log import RIG_KEYS, Log
+from fitstiff.validation import cli_number
 
 __all__ = ["add_log_arguments", "add_out_argument", "input_files", "logs_from_args",
            "reading_options"]
@@ -45,7 +46,7 @@ def add_log_arguments(parser: argparse.ArgumentParser) -> None:
     rig = parser.add_argument_group("rig metadata (overrides the sidecar JSON and --format)")
     for key in RIG_KEYS:
         unit = key.key.rsplit("_", 1)[1].upper()
-        rig.add_argument(key.flag, dest=key.key, type=float, metavar=unit, help=key.help)
+        rig.add_argument(key.flag, dest=key.key, type=cli_number, metavar=unit, help=key.help)
     rig.add_argument("--vented", action="append", choices=CHAMBERS,
                      help="a chamber open to ambient (repeat for both)")
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 
 from fitstiff.cli._common import (add_log_arguments, add_out_argument, input_files,
                                   logs_from_args, reading_options)
@@ -15,9 +16,12 @@ from fitstiff.output import OutputDir, to_jsonable
 from fitstiff.params import find_param
 from fitstiff.problem import OPTIONAL_NUISANCES
 from fitstiff.segmentation import REGIONS
+from fitstiff.validation import parse_decimal
 
 __all__ = ["add_parser", "run", "parse_fix", "fit_options", "add_data_arguments",
            "problem_options"]
+
+_MAX_WEIGHT = 1e6     # relative region weights beyond this are a typo, not a choice
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -68,11 +72,11 @@ def parse_fix(items, spec: str) -> dict[str, float | None]:
         if not sep:
             values[name] = None
             continue
-        try:
-            number = float(value)
-        except ValueError:
+        number = parse_decimal(value)
+        if number is None or not math.isfinite(number):
             raise InputError(None, f"--fix {item}", f"value {value!r} is not a number",
-                             "write NAME=VALUE in the parameter's display unit") from None
+                             "write NAME=VALUE in the parameter's display unit, as a plain "
+                             "finite decimal") from None
         try:
             scale = find_param(model, name).scale
         except KeyError:
@@ -99,13 +103,14 @@ def _weights(items):
     out = {}
     for item in items:
         region, sep, value = item.partition("=")
-        try:
-            out[region] = float(value)
-            if not sep:
-                raise ValueError
-        except ValueError:
+        weight = parse_decimal(value)
+        if not sep or weight is None:
             raise InputError(None, f"--weight {item}", "is not REGION=W",
-                             "write e.g. presliding=4") from None
+                             "write e.g. presliding=4")
+        if not 0 <= weight <= _MAX_WEIGHT:
+            raise InputError(None, f"--weight {item}", f"weight {weight:g} is outside "
+                             f"0..{_MAX_WEIGHT:g}", "give a relative weight such as 4")
+        out[region] = weight
     return out
 
 
@@ -132,6 +137,10 @@ def problem_options(args) -> dict[str, object]:
 
 def fit_options(args) -> dict[str, object]:
     """Keyword arguments of :func:`fitstiff.fitting.fit` from the parsed options."""
+    for flag, value, least in (("--max-steps", args.max_steps, 1), ("--skip", args.skip, 0)):
+        if value < least:
+            raise InputError(None, f"{flag} {value}", f"must be at least {least}",
+                             f"give {least} or more")
     return {"solver": args.solver, "starts": args.starts, "seed": args.seed,
             "max_steps": args.max_steps, **problem_options(args), "free": args.free}
 

@@ -15,6 +15,7 @@ from fitstiff.cli._common import add_log_arguments, logs_from_args
 from fitstiff.inspection import format_summary, inspect_log
 from fitstiff.output import OutputDir, to_jsonable
 from fitstiff.segmentation import DEFAULT_MIN_PAUSE, DEFAULT_PRESLIDING_RANGE, segment
+from fitstiff.validation import cli_number
 
 __all__ = ["add_parser", "run"]
 
@@ -32,15 +33,15 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     )
     add_log_arguments(parser)
     seg = parser.add_argument_group("segmentation")
-    seg.add_argument("--threshold-mm", type=float, metavar="H",
+    seg.add_argument("--threshold-mm", type=cli_number, metavar="H",
                      help="hysteresis threshold for direction reversals (default: 10 x the "
                           "estimated displacement noise, at least 4 x the sensor resolution "
                           "and 0.001 mm)")
-    seg.add_argument("--presliding-range-mm", type=float, metavar="D",
+    seg.add_argument("--presliding-range-mm", type=cli_number, metavar="D",
                      default=DEFAULT_PRESLIDING_RANGE * 1e3,
                      help="travel after a reversal or pause counted as presliding / dwell "
                           f"(default {DEFAULT_PRESLIDING_RANGE * 1e3:g})")
-    seg.add_argument("--min-pause-s", type=float, metavar="T", default=DEFAULT_MIN_PAUSE,
+    seg.add_argument("--min-pause-s", type=cli_number, metavar="T", default=DEFAULT_MIN_PAUSE,
                      help=f"shortest standstill reported as a pause (default {DEFAULT_MIN_PAUSE:g})")
     parser.add_argument("--json", action="store_true", help="print JSON instead of text")
     parser.add_argument("--out", metavar="DIR",

@@ -34,6 +34,7 @@ from fitstiff.posterior import (
     PREDICTIVE,
     sample_posterior,
 )
+from fitstiff.validation import cli_number
 
 __all__ = ["add_parser", "run"]
 
@@ -53,7 +54,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                        help="ensemble size, at least twice the sampled coordinates (default 32)")
     group.add_argument("--steps", type=int, default=20_000, metavar="N",
                        help="step cap, including the steps of a resumed run (default 20000)")
-    group.add_argument("--tau-multiple", type=float, default=50.0, metavar="K",
+    group.add_argument("--tau-multiple", type=cli_number, default=50.0, metavar="K",
                        help="converged when the chain is K autocorrelation times long "
                             "(default 50)")
     group.add_argument("--check-every", type=int, default=500, metavar="N",

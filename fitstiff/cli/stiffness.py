@@ -14,6 +14,7 @@ from fitstiff.log import RIG_KEYS, Rig
 from fitstiff.output import OutputDir, to_jsonable
 from fitstiff.stiffness import (ADIABATIC_AIR, BAR, JSON_KEYS, MM, StiffnessResult,
                                 chamber_stiffness, stiffness_table)
+from fitstiff.validation import cli_number, number
 
 __all__ = ["add_parser", "run"]
 
@@ -50,22 +51,23 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     )
     by_key = {k.key: k for k in RIG_KEYS}
     for key, suffix in _RIG_FLAGS.items():
-        parser.add_argument(by_key[key].flag, dest=key, type=float, required=key in _REQUIRED,
-                            metavar="X", help=by_key[key].help + suffix)
+        parser.add_argument(by_key[key].flag, dest=key, type=cli_number,
+                            required=key in _REQUIRED, metavar="X",
+                            help=by_key[key].help + suffix)
     where = parser.add_mutually_exclusive_group()
-    where.add_argument("--position-mm", type=float, metavar="X",
+    where.add_argument("--position-mm", type=cli_number, metavar="X",
                        help="x0: length of chamber A when the valves closed (default mid-stroke)")
     where.add_argument("--table", type=int, nargs="?", const=DEFAULT_TABLE_ROWS, metavar="N",
                        help="evaluate at the centres of N equal slices of the stroke instead "
                             f"of one position (default N = {DEFAULT_TABLE_ROWS})")
-    parser.add_argument("--pressure-a-bar", type=float, metavar="P",
+    parser.add_argument("--pressure-a-bar", type=cli_number, metavar="P",
                         help="closing pressure of chamber A, gauge (default --supply-bar)")
-    parser.add_argument("--pressure-b-bar", type=float, metavar="P",
+    parser.add_argument("--pressure-b-bar", type=cli_number, metavar="P",
                         help="closing pressure of chamber B, gauge (default --supply-bar)")
-    parser.add_argument("--n", type=float, default=ADIABATIC_AIR, metavar="N",
+    parser.add_argument("--n", type=cli_number, default=ADIABATIC_AIR, metavar="N",
                         help=f"polytropic exponent, 1 isothermal .. {ADIABATIC_AIR:g} adiabatic "
                              f"(default {ADIABATIC_AIR:g})")
-    parser.add_argument("--displacement-mm", type=float, default=DEFAULT_DISPLACEMENT_MM,
+    parser.add_argument("--displacement-mm", type=cli_number, default=DEFAULT_DISPLACEMENT_MM,
                         metavar="U", help="displacement from x0 at which the restoring force "
                                           "is evaluated, + toward the B cap "
                                           f"(default {DEFAULT_DISPLACEMENT_MM:g})")
@@ -79,6 +81,16 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 def run(args: argparse.Namespace) -> int:
     """Compute, print (text or JSON) and optionally write ``stiffness.json``."""
     by_key = {k.key: k for k in RIG_KEYS}
+    for key in _RIG_FLAGS:      # the plausible maximum of each value (the lower limits below)
+        spec = by_key[key]
+        if getattr(args, key) is not None:
+            number(getattr(args, key), where=None, what=spec.flag, unit=spec.unit,
+                   high=spec.high, meaning=spec.meaning)
+    for flag, value in (("--pressure-a-bar", args.pressure_a_bar),
+                        ("--pressure-b-bar", args.pressure_b_bar)):
+        if value is not None:
+            number(value, where=None, what=flag, unit="bar", high=by_key["supply_bar"].high,
+                   meaning="the closing pressure, gauge")
     rig = Rig(**{by_key[key].field: getattr(args, key) * by_key[key].scale
                  for key in _RIG_FLAGS if getattr(args, key) is not None})
     options = dict(displacement=args.displacement_mm * MM, n=args.n,
