@@ -101,7 +101,9 @@ class Diagnosis:
                 for which in ("before", "after")}
 
     def to_dict(self) -> dict[str, object]:
-        return {
+        """The ``diagnosis.json`` content. Values that are not determined (a shrink when the
+        gap is already at the noise floor, a z-score against a zero noise floor) are ``None``."""
+        return _undetermined_as_none({
             "baseline": self.baseline,
             "final_model": self.final_model,
             "gap": dict(self.gap),
@@ -116,7 +118,7 @@ class Diagnosis:
             "verdict": list(self.verdict),
             "files": list(self.files),
             "timing_s": dict(self.timing_s),
-        }
+        })
 
     @classmethod
     def from_dict(cls, data: Mapping[str, object]) -> Diagnosis:
@@ -157,3 +159,13 @@ class Diagnosis:
                          f"{verdict}")
         lines += [f"  {v}" for v in self.verdict]
         return "\n".join(lines)
+
+
+def _undetermined_as_none(obj):
+    if isinstance(obj, Mapping):
+        return {k: _undetermined_as_none(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_undetermined_as_none(v) for v in obj]
+    if isinstance(obj, (float, np.floating)) and not np.isfinite(obj):
+        return None
+    return obj
