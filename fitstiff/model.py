@@ -124,7 +124,14 @@ class Model(eqx.Module):
         t = drive.time
         dt = jnp.diff(t, prepend=2 * t[0] - t[1])
         dx = jnp.diff(x, prepend=x[0])
-        v = dx / dt if drive.velocity is None or self.of_kind("input") else drive.velocity
+        if drive.velocity is None:
+            v = dx / dt
+        else:
+            # the smoothed velocity of the measured displacement, plus the rate of what the
+            # input terms change (zero at their null: a time delay of 0 or a compliance of 0
+            # leaves the smoothed velocity as it is)
+            shift = x - drive.displacement
+            v = drive.velocity + jnp.diff(shift, prepend=shift[0]) / dt
         dv = jnp.diff(v, append=v[-1])
         dt_mid = 0.5 * (dt + jnp.append(dt[1:], dt[-1]))
         a = dv / dt_mid
