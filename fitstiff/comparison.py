@@ -14,6 +14,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from fitstiff.errors import InputError
 from fitstiff.fitting import FitResult, fit, fit_problem
 from fitstiff.log import Log
 from fitstiff.model import Model
@@ -34,7 +35,8 @@ def predict_held_out(log: Log, model: Model, **problem_kw) -> tuple[float, FitRe
 def held_out_rms(logs: Sequence[Log], model: Model | str, **fit_kw) -> list[float]:
     """Leave-one-log-out RMS force errors (N), one per log (needs two logs or more)."""
     if len(logs) < 2:
-        raise ValueError("held-out error over logs needs at least two logs")
+        raise InputError(None, "held-out error over logs", f"got {len(logs)} log",
+                         "give two logs or more (or rank by BIC)")
     problem_kw = {k: fit_kw[k] for k in PROBLEM_OPTIONS if k in fit_kw}
     out = []
     for i in range(len(logs)):

@@ -227,3 +227,19 @@ def test_nothing_is_accepted_without_a_missing_effect():
     assert result.gap["final_heldout_rms_N"] == result.gap["heldout_rms_N"]
     assert result.gap["heldout_rms_N"] < 1.3 * result.gap["noise_N"]
 
+
+
+def test_one_log_is_held_out_by_blocks_of_loops_covering_every_sample_once():
+    from fitstiff.diagnosis.select import folds_for
+    from fitstiff.diagnosis.supermodel import SuperProblem
+
+    sim = simulate("dahl", TriangleCycles(amplitudes_mm=(0.3, 0.5, 0.8, 1.0, 1.2), cycles=2,
+                                          rate_mm_s=4.0), rig=RIG, rate_hz=100.0)
+    sp = SuperProblem([sim.log], "dahl", ["viscous"])
+    folds = folds_for(sp)
+    assert len(folds) == 4 and all(f.log is None for f in folds)
+    cover = np.sum([f.samples[1] for f in folds], axis=0)
+    assert np.all(cover == 1)
+    loops = sp.problem.segmentations[0].loops
+    starts = [int(np.flatnonzero(f.samples[1])[0]) for f in folds[1:]]
+    assert set(starts) <= set(loops[:, 0].tolist())          # blocks start at a loop
