@@ -243,3 +243,29 @@ def test_one_log_is_held_out_by_blocks_of_loops_covering_every_sample_once():
     loops = sp.problem.segmentations[0].loops
     starts = [int(np.flatnonzero(f.samples[1])[0]) for f in folds[1:]]
     assert set(starts) <= set(loops[:, 0].tolist())          # blocks start at a loop
+
+
+@pytest.mark.parametrize("argv, fragment", [
+    (["--baseline", "chamber+dahl+nonsense"], "unknown term 'nonsense'"),
+    (["--candidates", "viscous,dahl"], "--candidates dahl: is not a candidate effect"),
+    (["--candidates", "chamber"], "'chamber' is already in the baseline"),
+    (["--baseline", "chamber", "--candidates", "stribeck"], "modifies a friction base"),
+    (["--alpha", "1.5"], "--alpha 1.5: must lie strictly between 0 and 1"),
+])
+def test_cli_bad_options_exit_2_with_one_line(tmp_path, capsys, argv, fragment):
+    import hashlib
+    from pathlib import Path
+
+    from fitstiff.cli import main
+
+    logs = sorted(str(p) for p in (Path(__file__).resolve().parents[1] / "data" / "synthetic"
+                                   / "null").glob("triangle_1mm_s.*"))
+    before = {p: hashlib.sha256(Path(p).read_bytes()).hexdigest() for p in logs}
+    csv = [p for p in logs if p.endswith(".csv")]
+    code = main(["diagnose", *csv, *argv, "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert code == 2, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and fragment in lines[0] and "Traceback" not in err
+    assert before == {p: hashlib.sha256(Path(p).read_bytes()).hexdigest() for p in logs}
+    assert not (tmp_path / "out" / "diagnosis.json").exists()
