@@ -22,7 +22,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from fitstiff.diagnosis.gap import above_floor, region_table
+from fitstiff.diagnosis.gap import above_floor, pooled_excess, region_table
 from fitstiff.diagnosis.noise import noise_floor
 from fitstiff.diagnosis.result import Candidate, Diagnosis
 from fitstiff.diagnosis.screen import Score, screen
@@ -134,8 +134,10 @@ def diagnose(logs: Sequence[Log], *, baseline: str = "chamber+dahl",
                     parameters=_display(sp, s.one_step, "one_step"), round=round_,
                     why=why)
             else:
-                why = (s.reason and f"not testable: {s.reason}") or (
-                    f"score not significant (p = {s.p_value:.2g}, needs < {alpha / m:.2g})")
+                why = (f"not testable: {s.reason}" if s.reason else
+                       f"significant, but not among the {_MAX_REFITS} strongest refitted "
+                       "in this round" if s.testable and s.p_value * m < alpha else
+                       f"score not significant (p = {s.p_value:.2g}, needs < {alpha / m:.2g})")
                 decided[s.effect] = Candidate(
                     effect=s.effect, score=s.statistic, dof=s.dof, p_value=s.p_value,
                     testable=s.testable, round=round_, why=why,
@@ -274,8 +276,7 @@ def _verdict(baseline, accepted, decided, gap, still, noise) -> list[str]:
     if still.empty:
         lines.append("nothing stays above the noise floor")
     else:
-        by_region = still.groupby("region")["excess_N"].max().sort_values(ascending=False)
         lines.append("unexplained: " + ", ".join(
-            f"{excess:.2g} N above the noise in {region}" for region, excess in
-            by_region.items()))
+            f"{excess:.2g} N RMS above the noise in the {region} cells above the floor"
+            for region, excess in pooled_excess(still).items()))
     return lines

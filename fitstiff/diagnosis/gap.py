@@ -25,7 +25,7 @@ import pandas as pd
 from fitstiff.diagnosis.noise import NoiseFloor
 from fitstiff.segmentation import Segmentation
 
-__all__ = ["region_table", "region_summary", "above_floor", "Z_ABOVE", "EXCESS_ABOVE"]
+__all__ = ["region_table", "region_summary", "above_floor", "pooled_excess", "Z_ABOVE", "EXCESS_ABOVE"]
 
 Z_ABOVE = 3.0
 EXCESS_ABOVE = 1.1
@@ -94,11 +94,26 @@ def _z_rms(rms: float, sigma: float, rho: float, n: int) -> float:
 
 
 def above_floor(table: pd.DataFrame) -> pd.DataFrame:
-    """The cells whose residual stays above the noise floor, largest excess first."""
+    """The cells whose residual stays above the noise floor, the largest share of the squared
+    error first (a large excess over a handful of samples ranks below a broad one)."""
     if table.empty:
         return table
     keep = (table["z_rms"] > Z_ABOVE) & (table["rms_N"] > EXCESS_ABOVE * table["noise_N"])
-    return table[keep].sort_values("excess_N", ascending=False)
+    return table[keep].sort_values("share", ascending=False)
+
+
+def pooled_excess(cells: pd.DataFrame) -> pd.Series:
+    """Per region: the RMS excess over the noise (N) pooled over the given cells (by samples);
+    stroke_end cells overlap the motion regions and are pooled on their own."""
+    if cells.empty:
+        return pd.Series(dtype=float)
+    out = {}
+    for region, group in cells.groupby("region"):
+        n = group["samples"].to_numpy(float)
+        ms = float(np.sum(n * group["rms_N"].to_numpy() ** 2) / n.sum())
+        noise = float(np.sum(n * group["noise_N"].to_numpy() ** 2) / n.sum())
+        out[region] = math.sqrt(max(ms - noise, 0.0))
+    return pd.Series(out).sort_values(ascending=False)
 
 
 def region_summary(residuals: Sequence[np.ndarray], segmentations: Sequence[Segmentation],

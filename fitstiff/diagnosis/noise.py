@@ -37,7 +37,7 @@ class NoiseFloor:
 
     sigma: float
     rho: float
-    method: str = "second differences at lags 1 and 2 (robust), AR(1)"
+    method: str = "second differences at lags 1-4 (robust), AR(1)"
     capped: bool = False
 
     def effective_samples(self, n: int) -> float:
