@@ -63,7 +63,7 @@ from fitstiff.posterior import CHAIN, INFERENCE_DATA
 from fitstiff.problem import NUISANCES, PROBLEM_OPTIONS, Problem
 from fitstiff.stiffness import MM
 
-__all__ = ["FIGURES", "REPORT", "REPORT_MANIFEST", "RESULT_FILES", "ReportFigure",
+__all__ = ["FIGURES", "PLANNED", "REPORT", "REPORT_MANIFEST", "RESULT_FILES", "ReportFigure",
            "RunDirectory", "open_run", "write_report"]
 
 REPORT = "report.html"
@@ -73,6 +73,8 @@ REPORT_MANIFEST = "report.manifest.json"
 RESULT_FILES: Mapping[str, str] = {"posterior": "posterior.json", "fit": "fit.json",
                                    "diagnosis": "diagnosis.json"}
 """Report kind -> the result file that makes a directory one of that kind (checked in order)."""
+PLANNED = (REPORT, f"{FIGURES}/")
+"""What a report writes into its directory (besides :data:`REPORT_MANIFEST`)."""
 
 _Z90 = 1.6448536269514722       # two-sided 90 % of a standard normal
 _PER_LOG_NUISANCES = {"offset": ("offset_N", 1.0), "friction_state0": ("friction_state0", 1.0),
@@ -132,11 +134,14 @@ def open_run(directory: str | Path) -> RunDirectory:
                          "give the --out directory of fitstiff fit, posterior or diagnose")
     name = RESULT_FILES[kind]
     result = _read_json(path / name)
-    manifest = _read_json(path / MANIFEST, missing="the run did not finish; run it again")
-    if name not in manifest.get("outputs", []):
+    latest = _read_json(path / MANIFEST, missing="the run did not finish; run it again")
+    # the run that wrote the result file: the manifest's, or one it keeps as an earlier run
+    manifest = next((record for record in [latest, *latest.get("earlier_runs", [])]
+                     if name in record.get("outputs", [])), None)
+    if manifest is None:
         raise InputError(str(path / MANIFEST), "outputs",
                          f"do not include {name} (the manifest is of another run: "
-                         f"{manifest.get('command', '?')})",
+                         f"{latest.get('command', '?')})",
                          "give every run its own --out directory")
     started = Path(manifest.get("cwd", "."))   # relative paths are relative to it
     inputs = tuple(_verified({**entry, "path": str(started / entry["path"])},
@@ -930,24 +935,46 @@ def write_report(directory: str | Path, *, out: str | Path | None = None,
     if not (isinstance(draws, int) and draws >= 2):
         raise InputError(None, f"draws {draws!r}", "must be a whole number >= 2",
                          "give e.g. 100")
-    run = open_run(directory)
-    report = _BUILDERS[run.kind](run, draws=draws)
-    target = OutputDir(Path(out) if out is not None else run.path,
-                       inputs=[run.result_file, run.path / MANIFEST]
-                       + [run.path / f for f in run.manifest.get("outputs", [])]
-                       + [path for path, _ in run.inputs],
-                       options={"directory": str(run.path), "kind": run.kind, "draws": draws},
-                       manifest_name=REPORT_MANIFEST)
-    images = {}
-    for section in report.sections:
-        for fig in section.figures:
-            png = _render(fig.figure, "png")
-            target.write_bytes(f"{FIGURES}/{fig.name}.png", png)
-            target.write_bytes(f"{FIGURES}/{fig.name}.svg", _render(fig.figure, "svg"))
-            images[fig.name] = base64.b64encode(png).decode("ascii")
-    path = target.write_bytes(REPORT, _html(report, run, images))
-    target.finish()
+    directory = Path(directory)
+    if not directory.is_dir():
+        raise InputError(str(directory), "report directory", "does not exist or is not a "
+                         "directory", "give the --out directory of fitstiff fit or fitstiff "
+                         "posterior")
+    with OutputDir(Path(out) if out is not None else directory,
+                   inputs=_recorded_inputs(directory), planned=PLANNED,
+                   options={"directory": str(directory), "draws": draws},
+                   manifest_name=REPORT_MANIFEST) as target:
+        run = open_run(directory)
+        target.inputs = ([run.result_file, run.path / MANIFEST]
+                         + [run.path / f for f in run.manifest.get("outputs", [])]
+                         + [p for p, _ in run.inputs])
+        target.options["kind"] = run.kind
+        report = _BUILDERS[run.kind](run, draws=draws)
+        images = {}
+        for section in report.sections:
+            for fig in section.figures:
+                png = _render(fig.figure, "png")
+                target.write_bytes(f"{FIGURES}/{fig.name}.png", png)
+                target.write_bytes(f"{FIGURES}/{fig.name}.svg", _render(fig.figure, "svg"))
+                images[fig.name] = base64.b64encode(png).decode("ascii")
+        path = target.write_bytes(REPORT, _html(report, run, images))
+        target.finish()
     return path
+
+
+def _recorded_inputs(directory: Path) -> list[Path]:
+    """The files a report reads, as far as the run directory tells without loading anything:
+    its result files, manifest and the manifest's inputs (never written by the report)."""
+    paths = [directory / name for name in RESULT_FILES.values()] + [directory / MANIFEST]
+    try:
+        manifest = json.loads((directory / MANIFEST).read_text(encoding="utf-8"))
+        started = Path(manifest.get("cwd", "."))
+        records = [manifest, *manifest.get("earlier_runs", [])]
+        paths += [started / entry["path"] for record in records
+                  for entry in record.get("inputs", [])]
+    except (OSError, ValueError, TypeError, KeyError, AttributeError):
+        pass                     # open_run says what is wrong with the manifest
+    return paths
 
 
 def _render(fig: Figure, fmt: str) -> bytes:

@@ -22,8 +22,8 @@ from fitstiff.loading import load_logs
 from fitstiff.log import RIG_KEYS, Log
 from fitstiff.validation import cli_number
 
-__all__ = ["add_log_arguments", "add_out_argument", "input_files", "logs_from_args",
-           "reading_options"]
+__all__ = ["add_log_arguments", "add_out_argument", "input_files", "input_paths",
+           "logs_from_args", "reading_options"]
 
 
 def add_log_arguments(parser: argparse.ArgumentParser) -> None:
@@ -74,16 +74,23 @@ def reading_options(args: argparse.Namespace) -> dict[str, object]:
             "rig_overrides": overrides, "fmt": args.format}
 
 
-def input_files(logs: list[Log], args: argparse.Namespace) -> list[Path]:
-    """Every file a run read: the logs, their sidecar JSONs and a format file (not a bundled
-    format name), for the manifest's hashes."""
+def input_paths(args: argparse.Namespace) -> list[Path]:
+    """Every file a run will read, known from the options alone (so the output directory can
+    be checked before anything is loaded): the logs, their sidecar JSONs and a format file
+    (not a bundled format name), for the manifest's hashes."""
     files: list[Path] = []
-    for log in logs:
-        if log.path:
-            files.append(Path(log.path))
-            sidecar = Path(log.path).with_suffix(".json")
-            if sidecar.is_file():
-                files.append(sidecar)
+    for name in args.logs:
+        path = Path(name)
+        files.append(path)
+        sidecar = path.with_suffix(".json")
+        if sidecar.is_file():
+            files.append(sidecar)
     if args.format and Path(args.format).is_file():
         files.append(Path(args.format))
     return files
+
+
+def input_files(logs: list[Log], args: argparse.Namespace) -> list[Path]:
+    """:func:`input_paths` (kept for callers that have the logs already)."""
+    del logs
+    return input_paths(args)

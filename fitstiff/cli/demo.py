@@ -8,11 +8,16 @@ report: ``OUT/fit/``, ``OUT/posterior/`` with ``OUT/posterior/report.html``.
 from __future__ import annotations
 
 import argparse
+import contextlib
 from collections.abc import Sequence
 
 from fitstiff.cli._common import add_out_argument
+from fitstiff.cli.fit import FIT
+from fitstiff.cli.posterior import PLANNED
 from fitstiff.data import fig4_logs
-from fitstiff.report import REPORT, write_report
+from fitstiff.output import OutputDir
+from fitstiff.report import PLANNED as REPORT_PLANNED
+from fitstiff.report import REPORT, REPORT_MANIFEST, write_report
 
 __all__ = ["add_parser", "run", "MODEL", "CHAINS"]
 
@@ -47,12 +52,21 @@ def run(args) -> int:
     chain = CHAINS["quick" if args.quick else "default"]
     logs = [str(path) for path in fig4_logs()]
     fit_dir, posterior_dir = args.out / "fit", args.out / "posterior"
-    _subcommand(["fit", *logs, "--model", MODEL, "--out", str(fit_dir)])
-    _subcommand(["posterior", *logs, "--model", MODEL, "--steps", str(chain["steps"]),
-                 "--check-every", str(chain["check_every"]), "--draws", str(chain["draws"]),
-                 "--out", str(posterior_dir)])
-    print(f"\n$ fitstiff report {posterior_dir}")
-    report = write_report(posterior_dir, draws=chain["draws"])
+    # claim every directory the steps write before the first step runs (the steps' own
+    # claims nest inside these): a clash or a busy directory stops the demo before any work
+    claims = [OutputDir(args.out, manifest_name=None),
+              OutputDir(fit_dir, inputs=logs, planned=[FIT]),
+              OutputDir(posterior_dir, inputs=logs, planned=PLANNED),
+              OutputDir(posterior_dir, planned=REPORT_PLANNED, manifest_name=REPORT_MANIFEST)]
+    with contextlib.ExitStack() as stack:
+        for claim in claims:
+            stack.enter_context(claim)
+        _subcommand(["fit", *logs, "--model", MODEL, "--out", str(fit_dir)])
+        _subcommand(["posterior", *logs, "--model", MODEL, "--steps", str(chain["steps"]),
+                     "--check-every", str(chain["check_every"]), "--draws", str(chain["draws"]),
+                     "--out", str(posterior_dir)])
+        print(f"\n$ fitstiff report {posterior_dir}")
+        report = write_report(posterior_dir, draws=chain["draws"])
     print(f"\nThe report: {report}\n(open it in a browser; the least-squares fit's own report: "
           f"fitstiff report {fit_dir})")
     return 0

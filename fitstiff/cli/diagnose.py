@@ -9,10 +9,10 @@ import json
 
 import numpy as np
 
-from fitstiff.cli._common import (add_log_arguments, add_out_argument, input_files,
+from fitstiff.cli._common import (add_log_arguments, add_out_argument, input_paths,
                                   logs_from_args, reading_options)
 from fitstiff.cli.fit import add_data_arguments, problem_options
-from fitstiff.diagnosis import ALPHA, HELDOUT, MIN_SHRINK, diagnose
+from fitstiff.diagnosis import ALPHA, HELDOUT, MIN_SHRINK, RESULT, diagnose
 from fitstiff.diagnosis.supermodel import CANDIDATES
 from fitstiff.output import OutputDir, to_jsonable
 
@@ -51,20 +51,20 @@ def _npz(arrays) -> bytes:
 
 
 def run(args) -> int:
-    logs = logs_from_args(args)
     options = problem_options(args)
-    out = OutputDir(args.out, inputs=input_files(logs, args),
-                    options={"baseline": args.baseline, "candidates": args.candidates,
-                             "alpha": args.alpha, "min_shrink": args.min_shrink, **options,
-                             "reading": reading_options(args)})
-    result = diagnose(logs, baseline=args.baseline, candidates=args.candidates,
-                      alpha=args.alpha, min_shrink=args.min_shrink, **options)
-    out.write_json("diagnosis.json", result.to_dict())
-    out.write_bytes(HELDOUT, _npz(result.heldout_arrays()))
-    out.finish()
+    with OutputDir(args.out, inputs=input_paths(args), planned=[RESULT, HELDOUT],
+                   options={"baseline": args.baseline, "candidates": args.candidates,
+                            "alpha": args.alpha, "min_shrink": args.min_shrink, **options,
+                            "reading": reading_options(args)}) as out:
+        logs = logs_from_args(args)
+        result = diagnose(logs, baseline=args.baseline, candidates=args.candidates,
+                          alpha=args.alpha, min_shrink=args.min_shrink, **options)
+        out.write_json(RESULT, result.to_dict())
+        out.write_bytes(HELDOUT, _npz(result.heldout_arrays()))
+        out.finish()
     if args.json:
         print(json.dumps(to_jsonable(result.to_dict()), indent=2))
     else:
         print(result.summary())
-        print(f"wrote {out.path / 'diagnosis.json'}")
+        print(f"wrote {out.path / RESULT}")
     return 0

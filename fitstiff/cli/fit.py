@@ -6,7 +6,7 @@ import argparse
 import json
 import math
 
-from fitstiff.cli._common import (add_log_arguments, add_out_argument, input_files,
+from fitstiff.cli._common import (add_log_arguments, add_out_argument, input_paths,
                                   logs_from_args, reading_options)
 from fitstiff.comparison import compare
 from fitstiff.errors import InputError
@@ -19,8 +19,10 @@ from fitstiff.segmentation import REGIONS
 from fitstiff.validation import parse_decimal
 
 __all__ = ["add_parser", "run", "parse_fix", "fit_options", "add_data_arguments",
-           "problem_options"]
+           "problem_options", "FIT", "COMPARE"]
 
+FIT = "fit.json"
+COMPARE = "compare.json"
 _MAX_WEIGHT = 1e6     # relative region weights beyond this are a typo, not a choice
 
 
@@ -146,23 +148,24 @@ def fit_options(args) -> dict[str, object]:
 
 
 def run(args) -> int:
-    logs = logs_from_args(args)
     options = fit_options(args)
-    out = OutputDir(args.out, inputs=input_files(logs, args),
-                    seed=args.seed,
-                    options={"model": args.model, "fix": args.fix, **options,
-                             "reading": reading_options(args)})
-    if args.compare:
-        specs = [s for s in args.compare.split(",") if s]
-        comparison, _ = compare(logs, specs, **options)
-        print(comparison.table())
-        out.write_json("compare.json", comparison.to_dict())
-    result = fit(logs, args.model, fix=parse_fix(args.fix, args.model), **options)
-    out.write_json("fit.json", result.to_dict())
-    out.finish()
+    fix = parse_fix(args.fix, args.model)
+    planned = [FIT] + ([COMPARE] if args.compare else [])
+    with OutputDir(args.out, inputs=input_paths(args), planned=planned, seed=args.seed,
+                   options={"model": args.model, "fix": args.fix, **options,
+                            "reading": reading_options(args)}) as out:
+        logs = logs_from_args(args)
+        if args.compare:
+            specs = [s for s in args.compare.split(",") if s]
+            comparison, _ = compare(logs, specs, **options)
+            print(comparison.table())
+            out.write_json(COMPARE, comparison.to_dict())
+        result = fit(logs, args.model, fix=fix, **options)
+        out.write_json(FIT, result.to_dict())
+        out.finish()
     if args.json:
         print(json.dumps(to_jsonable(result.to_dict()), indent=2))
     else:
         print(result.table())
-        print(f"wrote {out.path / 'fit.json'}")
+        print(f"wrote {out.path / FIT}")
     return 0

@@ -9,15 +9,18 @@ manifest.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 
-from fitstiff.cli._common import add_log_arguments, logs_from_args
+from fitstiff.cli._common import add_log_arguments, input_paths, logs_from_args
 from fitstiff.inspection import format_summary, inspect_log
 from fitstiff.output import OutputDir, to_jsonable
 from fitstiff.segmentation import DEFAULT_MIN_PAUSE, DEFAULT_PRESLIDING_RANGE, segment
 from fitstiff.validation import cli_number
 
-__all__ = ["add_parser", "run"]
+__all__ = ["add_parser", "run", "INSPECT"]
+
+INSPECT = "inspect.json"
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -52,20 +55,20 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     """Load, segment and summarise every log; print text or JSON; optionally write it."""
-    logs = logs_from_args(args)
     options = {"presliding_range": args.presliding_range_mm * 1e-3,
                "min_pause": args.min_pause_s}
     if args.threshold_mm is not None:
         options["threshold"] = args.threshold_mm * 1e-3
-    summaries = [inspect_log(log, segmentation=segment(log, **options)) for log in logs]
-    document = {"logs": summaries}
-    if args.out:
-        inputs = [log.path for log in logs if log.path is not None]
-        inputs += [log.source["sidecar"] for log in logs if log.source.get("sidecar")]
-        out = OutputDir(args.out, inputs=inputs,
-                        options={k: v for k, v in vars(args).items() if k != "func"})
-        out.write_json("inspect.json", document)
-        out.finish()
+    out = (OutputDir(args.out, inputs=input_paths(args), planned=[INSPECT],
+                     options={k: v for k, v in vars(args).items() if k != "func"})
+           if args.out else None)
+    with out or contextlib.nullcontext():
+        logs = logs_from_args(args)
+        summaries = [inspect_log(log, segmentation=segment(log, **options)) for log in logs]
+        document = {"logs": summaries}
+        if out:
+            out.write_json(INSPECT, document)
+            out.finish()
     if args.json:
         print(json.dumps(to_jsonable(document), indent=2, allow_nan=False))
     else:

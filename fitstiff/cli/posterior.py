@@ -3,7 +3,8 @@
 Writes into ``--out``: ``posterior.json`` (DESIGN §5), ``chain.h5`` (the emcee chain),
 ``posterior.nc`` (ArviZ InferenceData), ``predictive.npz`` (model-force draws for the report)
 and ``manifest.json``. While sampling, the chain grows in ``.chain.h5.partial.h5``; an interrupted
-run (Ctrl-C, ``kill``) keeps it, and ``--resume`` continues from its last step.
+or failed run keeps it (and nothing else), and ``--resume`` continues from its last step.
+``--out`` is claimed and locked before anything is loaded (:class:`fitstiff.output.OutputDir`).
 """
 
 from __future__ import annotations
@@ -13,13 +14,14 @@ import json
 import shutil
 import signal
 import sys
+from pathlib import Path
 
 import numpy as np
 
 from fitstiff.cli._common import (
     add_log_arguments,
     add_out_argument,
-    input_files,
+    input_paths,
     logs_from_args,
     reading_options,
 )
@@ -36,7 +38,11 @@ from fitstiff.posterior import (
 )
 from fitstiff.validation import cli_number
 
-__all__ = ["add_parser", "run"]
+__all__ = ["add_parser", "run", "POSTERIOR", "PLANNED"]
+
+POSTERIOR = "posterior.json"
+PLANNED = (POSTERIOR, CHAIN, INFERENCE_DATA, PREDICTIVE)
+"""The files ``fitstiff posterior`` writes into ``--out`` (besides ``manifest.json``)."""
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -83,51 +89,53 @@ def _raise_interrupt(signum, frame):
 
 
 def run(args) -> int:
-    logs = logs_from_args(args)
     options = fit_options(args)
-    inputs = input_files(logs, args) + ([args.priors] if args.priors else [])
-    out = OutputDir(args.out, inputs=inputs, seed=args.seed,
-                    options={"model": args.model, "fix": args.fix, **options,
-                             "reading": reading_options(args),
-                             "noise_model": args.noise_model, "walkers": args.walkers,
-                             "steps": args.steps, "tau_multiple": args.tau_multiple,
-                             "priors": args.priors, "resume": args.resume})
-    partial = out.temp_path(CHAIN)
-    if args.resume and not partial.exists():
-        if not (out.path / CHAIN).exists():
-            raise InputError(str(out.path), "--resume", f"holds no {CHAIN} to continue",
-                             "run without --resume first")
-        shutil.copyfile(out.path / CHAIN, partial)   # the finished chain stays until replaced
-    elif not args.resume:
-        partial.unlink(missing_ok=True)
-    previous = signal.signal(signal.SIGTERM, _raise_interrupt)
-    try:
-        posterior = sample_posterior(
-            logs, args.model, fix=parse_fix(args.fix, args.model), fit_options=options,
-            noise_model=args.noise_model, priors=args.priors, walkers=args.walkers,
-            steps=args.steps, tau_multiple=args.tau_multiple, check_every=args.check_every,
-            thin=args.thin, seed=args.seed, backend=partial, resume=args.resume,
-            draws=args.draws)
-    except KeyboardInterrupt:
-        if partial.exists():
-            sys.stderr.write(f"fitstiff posterior: the chain so far is kept in {partial}; "
-                             "continue it with --resume\n")
-        raise
-    finally:
-        signal.signal(signal.SIGTERM, previous)
-    out.commit(CHAIN)
-    posterior.to_inference_data().to_netcdf(str(out.temp_path(INFERENCE_DATA)))
-    out.commit(INFERENCE_DATA)
-    with open(out.temp_path(PREDICTIVE), "wb") as fh:
-        np.savez_compressed(fh, **posterior.predictive)
-    out.commit(PREDICTIVE)
-    content = posterior.to_dict() | {"outputs": {"chain": CHAIN, "inference_data": INFERENCE_DATA,
-                                                 "predictive": PREDICTIVE}}
-    out.write_json("posterior.json", content)
-    out.finish()
+    fix = parse_fix(args.fix, args.model)
+    inputs = input_paths(args) + ([Path(args.priors)] if args.priors else [])
+    with OutputDir(args.out, inputs=inputs, planned=PLANNED, seed=args.seed,
+                   options={"model": args.model, "fix": args.fix, **options,
+                            "reading": reading_options(args),
+                            "noise_model": args.noise_model, "walkers": args.walkers,
+                            "steps": args.steps, "tau_multiple": args.tau_multiple,
+                            "priors": args.priors, "resume": args.resume}) as out:
+        logs = logs_from_args(args)
+        partial = out.partial_path(CHAIN)
+        if args.resume and not partial.exists():
+            if not (out.path / CHAIN).exists():
+                raise InputError(str(out.path), "--resume", f"holds no {CHAIN} to continue",
+                                 "run without --resume first")
+            shutil.copyfile(out.path / CHAIN, partial)   # the finished chain stays until replaced
+        elif not args.resume:
+            partial.unlink(missing_ok=True)
+        previous = signal.signal(signal.SIGTERM, _raise_interrupt)
+        try:
+            posterior = sample_posterior(
+                logs, args.model, fix=fix, fit_options=options,
+                noise_model=args.noise_model, priors=args.priors, walkers=args.walkers,
+                steps=args.steps, tau_multiple=args.tau_multiple, check_every=args.check_every,
+                thin=args.thin, seed=args.seed, backend=partial, resume=args.resume,
+                draws=args.draws)
+        except KeyboardInterrupt:
+            if partial.exists():
+                sys.stderr.write(f"fitstiff posterior: the chain so far is kept in {partial}; "
+                                 "continue it with --resume\n")
+            raise
+        finally:
+            signal.signal(signal.SIGTERM, previous)
+        out.commit_partial(CHAIN)
+        posterior.to_inference_data().to_netcdf(str(out.temp_path(INFERENCE_DATA)))
+        out.commit(INFERENCE_DATA)
+        with open(out.temp_path(PREDICTIVE), "wb") as fh:
+            np.savez_compressed(fh, **posterior.predictive)
+        out.commit(PREDICTIVE)
+        content = posterior.to_dict() | {"outputs": {"chain": CHAIN,
+                                                     "inference_data": INFERENCE_DATA,
+                                                     "predictive": PREDICTIVE}}
+        out.write_json(POSTERIOR, content)
+        out.finish()
     if args.json:
         print(json.dumps(to_jsonable(content), indent=2))
     else:
         print(posterior.table())
-        print(f"wrote {out.path / 'posterior.json'}")
+        print(f"wrote {out.path / POSTERIOR}")
     return 0

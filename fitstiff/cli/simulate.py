@@ -142,14 +142,16 @@ def run(args: argparse.Namespace) -> int:
                            source="command line")
     noise = Noise(force_N=args.force_noise_n, displacement_um=args.displacement_noise_um,
                   pressure_mbar=args.pressure_noise_mbar, ar1=args.ar1)
-    sim = simulate(args.model, program_from_args(args), rig=rig,
-                   params=parse_values(args.values), noise=noise, seed=args.seed,
-                   name=args.name, rate_hz=args.rate_hz)
-    out = OutputDir(args.out, seed=args.seed,
-                    options={k: v for k, v in vars(args).items() if k != "func"})
-    for name, text in format_log(sim.log, truth=sim.truth).items():
-        out.write_bytes(name, text)
-    out.finish()
+    program = program_from_args(args)
+    values = parse_values(args.values)
+    planned = [f"{args.name}.csv", f"{args.name}.json", f"{args.name}.truth.json"]
+    with OutputDir(args.out, planned=planned, seed=args.seed,
+                   options={k: v for k, v in vars(args).items() if k != "func"}) as out:
+        sim = simulate(args.model, program, rig=rig, params=values, noise=noise,
+                       seed=args.seed, name=args.name, rate_hz=args.rate_hz)
+        for name, text in format_log(sim.log, truth=sim.truth).items():
+            out.write_bytes(name, text)
+        out.finish()
     log = sim.log
     print(f"wrote {out.path / (log.name + '.csv')}: {len(log)} samples over {log.duration:g} s "
           f"at {args.rate_hz:g} Hz, model {sim.model.spec}, sidecar and truth beside it")

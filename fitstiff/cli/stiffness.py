@@ -8,6 +8,7 @@ a readable aligned text output, or ``--json`` with the keys of
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 
 from fitstiff.log import RIG_KEYS, Rig
@@ -80,6 +81,23 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     """Compute, print (text or JSON) and optionally write ``stiffness.json``."""
+    out = (OutputDir(args.out, planned=["stiffness.json"],
+                     options={k: v for k, v in vars(args).items() if k != "func"})
+           if args.out else None)
+    with out or contextlib.nullcontext():
+        document, text = _compute(args)
+        if out:
+            out.write_json("stiffness.json", document)
+            out.finish()
+    if args.json:
+        print(json.dumps(to_jsonable(document), indent=2, allow_nan=False))
+    else:
+        print(text)
+    return 0
+
+
+def _compute(args: argparse.Namespace) -> tuple[object, str]:
+    """The JSON document and the text of the options' computation."""
     by_key = {k.key: k for k in RIG_KEYS}
     for key in _RIG_FLAGS:      # the plausible maximum of each value (the lower limits below)
         spec = by_key[key]
@@ -106,15 +124,7 @@ def run(args: argparse.Namespace) -> int:
         result = chamber_stiffness(rig, position=position, **options)
         document = result.to_dict()
         text = format_result(result)
-    if args.out:
-        out = OutputDir(args.out, options={k: v for k, v in vars(args).items() if k != "func"})
-        out.write_json("stiffness.json", document)
-        out.finish()
-    if args.json:
-        print(json.dumps(to_jsonable(document), indent=2, allow_nan=False))
-    else:
-        print(text)
-    return 0
+    return document, text
 
 
 def format_result(result: StiffnessResult) -> str:
