@@ -249,12 +249,14 @@ class SuperProblem:
         with a slot that changes nothing), so the Jacobian through the scan carries as many
         tangents as there are free entries, not the whole super-model's. Two lengths are
         compiled: the largest model + nuisance set of the diagnosis, and one log's nuisances
-        (the held-out predictions).
+        (the held-out predictions); a model enlarged by accepted effects beyond the first adds
+        one more (rounded up to a multiple of 4, so a greedy round compiles at most once).
         """
         free = np.flatnonzero(np.concatenate([free_model, free_nuisance]))
         size = next((k for k in sorted(self._lengths) if k >= free.size), None)
-        if size is None:
-            raise ValueError(f"{free.size} free entries exceed the compiled {self._lengths}")
+        if size is None:       # accepted effects enlarged the model: one more length
+            size = 4 * -(-free.size // 4)
+            self._lengths.add(size)
         index = np.full(size, self.size)          # the padding slot: theta[size] is unused
         index[:free.size] = free
         theta_pad = np.append(np.asarray(theta0, dtype=float), 0.0)
