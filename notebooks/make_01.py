@@ -7,9 +7,11 @@ executes the notebook.
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
-import nbformat
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import cells  # noqa: E402  (notebooks/cells.py, beside this script)
 
 NOTEBOOK = Path(__file__).with_name("01_paper_reproduction.ipynb")
 
@@ -407,22 +409,9 @@ volume are stiffer; the §4 table above puts that point about 20 mm from a cap f
 ]
 
 
-def build() -> nbformat.NotebookNode:
-    """The notebook, without outputs, with stable cell ids."""
-    nb = nbformat.v4.new_notebook(metadata={
-        "kernelspec": {"display_name": "Python 3", "language": "python", "name": "python3"},
-        "language_info": {"name": "python"},
-    })
-    makers = {"markdown": nbformat.v4.new_markdown_cell, "code": nbformat.v4.new_code_cell}
-    nb.cells = [makers[kind](source.strip("\n"), id=f"cell-{i:02d}")
-                for i, (kind, source) in enumerate(CELLS)]
-    nbformat.validate(nb)
-    return nb
-
-
 def render() -> str:
     """The notebook file's text."""
-    return nbformat.writes(build())
+    return cells.render(CELLS)
 
 
 if __name__ == "__main__":
