@@ -108,7 +108,7 @@ def diagnose(logs: Sequence[Log], *, baseline: str = "chamber+dahl",
                            key=lambda s: s.p_value)[:_MAX_REFITS]
         tried = {}
         for s in promising:
-            entries = sp.elements(s.effect)
+            entries = sp.elements(s.effect, fitted=True)
             hold_c = np.array(hold)
             for name, value in s.one_step.items():
                 hold_c[problem.par.names.index(name)] = value

@@ -1,0 +1,70 @@
+"""The diagnosis' Levenberg-Marquardt (fitstiff.lm): solutions, statuses, the bound walk."""
+
+import numpy as np
+import optimistix as optx
+import pytest
+
+from fitstiff._jax import jax, jnp
+from fitstiff.lm import CONVERGED, MAX_STEPS, NONFINITE, STATUS, levenberg_marquardt
+
+T = np.linspace(0.0, 4.0, 200)
+TRUTH = np.array([2.5, -1.3, 0.7])
+Y = TRUTH[0] * np.exp(TRUTH[1] * T) + TRUTH[2] + 0.01 * np.random.default_rng(0).normal(
+    size=T.size)
+
+
+def decay(z):
+    return z[0] * jnp.exp(z[1] * T) + z[2] - Y
+
+
+def rosenbrock(z):
+    return jnp.array([10.0 * (z[1] - z[0] ** 2), 1.0 - z[0]])
+
+
+@pytest.mark.parametrize("fn, z0", [(decay, [1.0, -0.5, 0.0]), (rosenbrock, [-1.2, 1.0])])
+def test_it_finds_the_least_squares_solution_optimistix_finds(fn, z0):
+    ours = jax.jit(lambda z: levenberg_marquardt(fn, z, rtol=1e-10, atol=1e-10))(
+        jnp.asarray(z0))
+    theirs = optx.least_squares(lambda z, _: fn(z), optx.LevenbergMarquardt(1e-10, 1e-10),
+                                jnp.asarray(z0), max_steps=1000)
+    assert int(ours.status) == CONVERGED
+    np.testing.assert_allclose(ours.value, theirs.value, rtol=1e-6, atol=1e-8)
+    np.testing.assert_allclose(ours.cost, np.sum(np.asarray(fn(ours.value)) ** 2))
+
+
+def test_the_decay_fit_recovers_the_truth_within_its_noise():
+    out = levenberg_marquardt(decay, jnp.array([1.0, -0.5, 0.0]))
+    np.testing.assert_allclose(out.value, TRUTH, atol=0.02)
+    assert 0 < int(out.steps) < 50
+
+
+def test_a_step_budget_that_runs_out_is_reported():
+    out = levenberg_marquardt(rosenbrock, jnp.array([-1.2, 1.0]), max_steps=3)
+    assert int(out.status) == MAX_STEPS and int(out.steps) == 3
+    assert STATUS[MAX_STEPS] == "the step budget ran out"
+
+
+def test_a_start_with_nonfinite_residuals_is_reported_without_a_step():
+    out = levenberg_marquardt(lambda z: jnp.log(z) - 1.0, jnp.array([-1.0]))
+    assert int(out.status) == NONFINITE and int(out.steps) == 0
+
+
+def test_a_walk_towards_a_transform_bound_ends_converged():
+    """The best value of a non-negative stiffness k = exp(z) is 0: z walks to -inf while the
+    cost stops changing; the ftol test ends it (the step test alone never would)."""
+    x = np.linspace(-1.0, 1.0, 50)
+    y = 0.3 - 0.1 * x + 0.01 * np.random.default_rng(1).normal(size=x.size)   # slope < 0
+
+    def fn(z):
+        return jnp.exp(z[0]) * x + z[1] - y
+
+    out = levenberg_marquardt(fn, jnp.array([0.0, 0.0]), max_steps=200)
+    assert int(out.status) == CONVERGED and int(out.steps) < 100
+    assert float(jnp.exp(out.value[0])) < 1e-2
+    np.testing.assert_allclose(out.value[1], np.mean(y), atol=1e-3)
+
+
+def test_a_padding_entry_with_a_zero_column_stays_put():
+    out = levenberg_marquardt(lambda z: decay(z[:3]), jnp.array([1.0, -0.5, 0.0, 7.0]))
+    assert int(out.status) == CONVERGED
+    assert float(out.value[3]) == 7.0
