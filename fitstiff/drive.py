@@ -50,6 +50,8 @@ class Drive(eqx.Module):
     force_offset: jnp.ndarray    # N, added to the predicted force
     #: smoothed velocity (m/s) for rate-dependent terms; None: the difference quotient
     velocity: jnp.ndarray | None = None
+    #: smoothed acceleration (m/s^2) for the inertia term; None: the velocity's difference
+    acceleration: jnp.ndarray | None = None
     #: the measured force (N) where a term takes it as an input (``rig_compliance:measured``)
     measured_force: jnp.ndarray | None = None
     modes: tuple[str, str] = eqx.field(static=True, default=("closed", "closed"))

@@ -132,9 +132,13 @@ class Model(eqx.Module):
             # leaves the smoothed velocity as it is)
             shift = x - drive.displacement
             v = drive.velocity + jnp.diff(shift, prepend=shift[0]) / dt
-        dv = jnp.diff(v, append=v[-1])
         dt_mid = 0.5 * (dt + jnp.append(dt[1:], dt[-1]))
-        a = dv / dt_mid
+        if drive.acceleration is None:
+            a = jnp.diff(v, append=v[-1]) / dt_mid
+        else:
+            # the smoothed acceleration plus that of the input terms' change
+            rate = v - drive.velocity if drive.velocity is not None else jnp.zeros_like(v)
+            a = drive.acceleration + jnp.diff(rate, append=rate[-1]) / dt_mid
         return Step(t=t, dt=dt, x=x, dx=dx, v=v, a=a, p_a=drive.pressure_a,
                     p_b=drive.pressure_b, still=drive.still)
 

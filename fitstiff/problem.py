@@ -28,7 +28,8 @@ import equinox as eqx
 import numpy as np
 
 from fitstiff._jax import jax, jnp
-from fitstiff.denoise import denoise_displacement, reversal_samples, segment_velocity
+from fitstiff.denoise import (denoise_displacement, reversal_samples, segment_velocity,
+                              smooth_acceleration)
 from fitstiff.drive import Drive, drive_from_log
 from fitstiff.errors import InputError
 from fitstiff.guards import check_logs
@@ -128,7 +129,11 @@ class Problem:
                 drive = eqx.tree_at(lambda d: d.displacement, drive, jnp.asarray(x))
                 if log.time is not None:
                     v = segment_velocity(x, log.time, seg.reversals, noise=seg.noise)
-                    drive = dataclasses.replace(drive, velocity=jnp.asarray(v))
+                    a = (smooth_acceleration(log.displacement, log.time, noise=seg.noise)
+                         if "inertia" in names else None)
+                    drive = dataclasses.replace(drive, velocity=jnp.asarray(v),
+                                                acceleration=None if a is None
+                                                else jnp.asarray(a))
             self.drives.append(drive)
         built = build_model(model, drives=self.drives) if isinstance(model, str) else model
         fixed_values = ({k: v for k, v in fix.items() if v is not None}
@@ -459,5 +464,7 @@ def _pad_drive(drive: Drive, n: int) -> Drive:
         still=jnp.asarray(_pad(drive.still, n)),
         velocity=None if drive.velocity is None else jnp.asarray(_pad(drive.velocity, n,
                                                                        fill=0.0)),
+        acceleration=(None if drive.acceleration is None
+                      else jnp.asarray(_pad(drive.acceleration, n, fill=0.0))),
         measured_force=(None if drive.measured_force is None
                         else jnp.asarray(_pad(drive.measured_force, n))))
