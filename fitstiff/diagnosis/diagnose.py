@@ -155,7 +155,12 @@ def diagnose(logs: Sequence[Log], *, baseline: str = "chamber+dahl",
         decided[s.effect] = dataclasses.replace(decided[s.effect], accepted=True, why="",
                                                 parameters=_display(sp, values, "fit"))
         accepted.append(s.effect)
-        current = ho
+        # the next round compares against the accepted model at its best: its folds restarted
+        # from the full-data fit often end lower than the refit's (started at the one-step
+        # values); a stale "before" let a second effect claim the first one's unfinished part
+        # (the stribeck set accepted time_delay for 99 % of a gap that stribeck itself closes)
+        again = held_out(sp, folds, theta, hold, active)
+        current = again if again.converged and again.rms_N < ho.rms_N else ho
     clock["select"] = time.perf_counter()
 
     base_table = region_table(baseline_heldout.residuals, problem.segmentations, noise, masks)
