@@ -10,7 +10,8 @@ it).
 
 A candidate is **accepted** when (1) its score p-value, Bonferroni-corrected over the
 candidates, is below ``alpha``; (2) every refit converged; (3) its held-out RMS is below the
-current model's; and (4) it removes at least ``min_shrink`` of the gap above the noise floor,
+current model's by at least 5 % of the noise floor (``MIN_GAIN``: the floor itself is known
+to a few per cent); and (4) it removes at least ``min_shrink`` of the gap above the noise floor,
 ``shrink = (before - after) / (before - noise)``. Among the candidates that pass, the one with
 the lowest held-out RMS is accepted; the screen is then repeated on the enlarged model, until
 none passes. Condition (1) bounds the false-alarm rate on data with no missing effect by
