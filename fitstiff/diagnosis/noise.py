@@ -41,7 +41,7 @@ class NoiseFloor:
 
     sigma: float
     rho: float
-    method: str = "second differences at lags 1-4 (robust), AR(1)"
+    method: str = "second differences at lags 1-4 (robust), AR(1) plus a k^4 curvature term"
     capped: bool = False
 
     def effective_samples(self, n: int) -> float:
