@@ -509,7 +509,8 @@ def _identifiability(problem: Problem, jac, dphys, g0, state_cols,
     levels = [n for j, n in enumerate(names) if n in seal and not n.startswith("friction_state0[")
               and (kinds[n][1] == "N" or abs(breakaway[j]) > 0)]
     n_rev, travel = reversal_travel([np.asarray(dr.displacement) for dr in problem.drives],
-                                    [s.reversals for s in problem.segmentations])
+                                    [s.reversals for s in problem.segmentations],
+                                    problem.sample_weights)
     return assess_identifiability(names=names, seal=seal, levels=levels, reversals=n_rev,
                                   longest_travel_m=travel, derived=derived, gram=gram,
                                   derived_gradient=gradient, derived_names=DERIVED)

@@ -92,18 +92,24 @@ class Identifiability:
                 "null_directions": list(self.null_directions)}
 
 
-def reversal_travel(displacements: Sequence[np.ndarray],
-                    reversals: Sequence[np.ndarray]) -> tuple[int, float | None]:
+def reversal_travel(displacements: Sequence[np.ndarray], reversals: Sequence[np.ndarray],
+                    weights: Sequence[np.ndarray] | None = None) -> tuple[int, float | None]:
     """``(number of reversals, longest travel after one in m)`` over the logs; travel is the
-    largest distance from a reversal reached before the next one (or the log's end)."""
+    largest distance from a reversal reached before the next one (or the log's end), at a
+    sample the fit uses (``weights`` > 0; all samples without ``weights``)."""
     count, longest = 0, None
-    for x, revs in zip(displacements, reversals):
+    for k, (x, revs) in enumerate(zip(displacements, reversals)):
         x = np.asarray(x, dtype=float)
+        used = (np.ones(x.shape[0], dtype=bool) if weights is None
+                else np.asarray(weights[k]) > 0)
         revs = np.asarray(revs, dtype=int)
         count += revs.size
         ends = np.append(revs[1:], x.shape[0] - 1)
         for r, end in zip(revs, ends):
-            travel = float(np.max(np.abs(x[r:end + 1] - x[r])))
+            seen = used[r:end + 1]
+            if not seen.any():
+                continue
+            travel = float(np.max(np.abs(x[r:end + 1][seen] - x[r])))
             longest = travel if longest is None else max(longest, travel)
     return count, longest
 
