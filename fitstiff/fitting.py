@@ -34,9 +34,10 @@ from fitstiff._jax import jax, jnp
 from fitstiff.derived import DERIVED, derived_quantities, split_unit
 from fitstiff.errors import InputError
 from fitstiff.guards import check_finite
+from fitstiff.identifiability import Identifiability, assess_identifiability, reversal_travel
 from fitstiff.log import Log
 from fitstiff.model import Model
-from fitstiff.params import Parameterization
+from fitstiff.params import Parameterization, named_params
 from fitstiff.problem import Problem
 from fitstiff.terms.base import FrictionEstimate
 
@@ -67,6 +68,9 @@ class FitResult:
         derived: name -> ``(value, stderr)`` in engineering units (DESIGN §1.2), at the first
             log's operating point; ``per_log`` holds each log's chamber stiffness.
         converged: the solver's verdict; ``message`` says why not.
+        identifiability: whether the data separate the seal parameters
+            (:mod:`fitstiff.identifiability`); the parameters and derived quantities it
+            names have NaN standard errors (``null`` in fit.json).
         rms_N: RMS force residual over the weighted samples of all logs.
     """
 
@@ -92,6 +96,7 @@ class FitResult:
     bic: float
     residual_autocorrelation: float
     warnings: tuple[str, ...]
+    identifiability: Identifiability
     files: tuple[str, ...]
     starts: Mapping[str, int]
     theta: np.ndarray
@@ -132,6 +137,9 @@ class FitResult:
             "rms_N": self.rms_N,
             "converged": self.converged,
             "message": self.message,
+            "identifiable": self.identifiability.identifiable,
+            "identifiable_reason": self.identifiability.reason,
+            "identifiability": self.identifiability.to_dict(),
             "solver": self.solver,
             "steps": self.steps,
             "files": list(self.files),
@@ -151,7 +159,8 @@ class FitResult:
         """A readable table with units."""
         lines = [f"model {self.model.spec}: "
                  + ("converged" if self.converged else f"NOT CONVERGED ({self.message})")
-                 + f" after {self.steps} steps; rms {self.rms_N:.4g} N over {self.n_data} data"]
+                 + f" after {self.steps} steps; rms {self.rms_N:.4g} N over {self.n_data} data",
+                 self.identifiability.line()]
         lines.append(f"  {'parameter':<22}{'value':>14}{'stderr':>12}  unit")
         for name, p in self.parameters().items():
             err = "fixed" if p.get("fixed") else ("n/d" if p["stderr"] is None
@@ -359,7 +368,7 @@ def fit_problem(problem: Problem, *, solver: str = "lm", starts: int = 1, seed: 
 def _summarise(problem: Problem, theta, *, converged: bool, message: str, steps: int,
                solver: str, starts: Mapping[str, int]) -> FitResult:
     ev = problem.cached("summary", lambda: _summary_functions(problem))
-    residuals, jac, eiv, values, dphys, d0, g0 = (np.asarray(a) for a in ev(theta))
+    residuals, jac, eiv, values, dphys, d0, g0, state_cols = (np.asarray(a) for a in ev(theta))
     check_finite(problem.logs, "the fit's whitened residuals and Jacobian", residuals, jac,
                  limit=_RESIDUAL_LIMIT)
     check_finite(problem.logs, "the fitted parameter values", values, dphys)
@@ -418,6 +427,13 @@ def _summarise(problem: Problem, theta, *, converged: bool, message: str, steps:
             err = float("nan")
         derived[name] = (float(d0[k]), err)
 
+    identifiability = _identifiability(problem, jac, dphys, g0, state_cols,
+                                       {k: v for k, (v, _) in derived.items()})
+    withheld = set(identifiability.parameters)
+    stderr[[i for i, n in enumerate(names) if n in withheld]] = np.nan
+    for name in identifiability.derived:
+        derived[name] = (derived[name][0], float("nan"))
+
     model, nuis = problem.unpack(theta)
     per_log = []
     raw_sq, raw_n = 0.0, 0
@@ -454,9 +470,50 @@ def _summarise(problem: Problem, theta, *, converged: bool, message: str, steps:
         fixed=fixed, derived=derived, per_log=per_log, converged=converged, message=message,
         steps=steps, solver=solver, rms_N=math.sqrt(raw_sq / max(raw_n, 1)), cost=cost,
         n_data=n_data, n_params=n_par, aic=aic, bic=bic, residual_autocorrelation=rho,
-        warnings=tuple(warnings),
+        warnings=tuple(warnings), identifiability=identifiability,
         files=tuple(str(log.path) if log.path else log.name for log in problem.logs),
         starts=starts, theta=np.asarray(theta), problem=problem)
+
+
+def _identifiability(problem: Problem, jac, dphys, g0, state_cols,
+                     derived: Mapping[str, float]) -> Identifiability:
+    """:func:`~fitstiff.identifiability.assess_identifiability` of a fit: the data checks on
+    the (denoised) drives, the null-direction check on ``J^T J`` in physical coordinates."""
+    names = problem.names
+    kinds = {}
+    for i, p, flat in named_params(problem.model):
+        term = problem.model.terms[i]
+        is_seal = term.kind == "friction" or (term.kind == "modifier"
+                                              and term.targets == "friction")
+        for n in flat:
+            kinds[n] = (is_seal, p.unit)
+    seal = [n for n in problem.par.names if kinds[n][0]]
+    states = [j for j, n in enumerate(names) if n.startswith("friction_state0[")]
+    if seal:
+        seal += [names[j] for j in states]
+    # physical coordinates: A = d(theta)/d(physical); a state's column comes from its JVP
+    d = np.array(dphys, dtype=float)
+    d[states, states] = 1.0
+    a = np.linalg.pinv(d)
+    gram = a.T @ (jac.T @ jac) @ a
+    if states:
+        rows = {i: np.zeros(jac.shape[0], dtype=bool) for i in range(problem.n_logs)}
+        for series in problem.residual_series():
+            rows[series.log][series.span] = True
+        for j, i in zip(states, range(problem.n_logs)):
+            u = np.where(rows[i], state_cols, 0.0)
+            gram[:, j] = gram[j, :] = a.T @ (jac.T @ u)
+            gram[j, j] = float(u @ u)
+    gradient = g0 @ a
+    breakaway = gradient[DERIVED.index("breakaway_N")]
+    levels = [n for j, n in enumerate(names) if n in seal and not n.startswith("friction_state0[")
+              and (kinds[n][1] == "N" or abs(breakaway[j]) > 0)]
+    n_rev, travel = reversal_travel([np.asarray(dr.displacement) for dr in problem.drives],
+                                    [s.reversals for s in problem.segmentations],
+                                    problem.sample_weights)
+    return assess_identifiability(names=names, seal=seal, levels=levels, reversals=n_rev,
+                                  longest_travel_m=travel, derived=derived, gram=gram,
+                                  derived_gradient=gradient, derived_names=DERIVED)
 
 
 def _summary_functions(problem: Problem):
@@ -479,7 +536,19 @@ def _summary_functions(problem: Problem):
             [(c * s).ravel() for c, s in zip(vjp(col)[0], scales)]), in_axes=1, out_axes=1)(jac)
         return (problem.residuals(theta), jac, eiv, problem.physical(theta),
                 jax.jacfwd(problem.physical)(theta), derived_vec(theta),
-                jax.jacfwd(derived_vec)(theta))
+                jax.jacfwd(derived_vec)(theta), state_columns(theta))
+
+    def state_columns(theta):
+        # d(residuals)/d(initial friction state) in physical coordinates, summed over the
+        # logs (their rows are disjoint): the tanh transform flattens at saturation, where a
+        # fit without reversals ends, and hides the state's trade-off with the seal
+        model, nuisances = problem.unpack(theta)
+        if "friction_state0" not in nuisances:
+            return jnp.zeros(0)
+        z = nuisances["friction_state0"]
+        _, column = jax.jvp(lambda zz: problem.model_residuals(
+            model, {**nuisances, "friction_state0": zz}), (z,), (jnp.ones_like(z),))
+        return column
 
     return evaluate
 

@@ -254,6 +254,8 @@ class Posterior:
         if self.fit is not None:
             fit_dict = self.fit.to_dict()
             out["fit"] = {k: fit_dict[k] for k in ("converged", "rms_N", "parameters", "derived")}
+            for key in ("identifiable", "identifiable_reason", "identifiability"):
+                out[key] = fit_dict[key]
         return out
 
     def table(self) -> str:
@@ -391,6 +393,11 @@ def sample_posterior(logs_or_fit: Sequence[Log] | FitResult, model: Model | str 
         if not fit_result.converged:
             warnings.append(f"the least-squares start did not converge "
                             f"({fit_result.message}); the burn-in may be long")
+        if not fit_result.identifiability.identifiable:
+            ident = fit_result.identifiability
+            warnings.append(f"the data do not identify the seal: {ident.reason} The posterior "
+                            f"of {', '.join(ident.parameters + ident.derived)} reflects the "
+                            "prior and the model's assumptions, not a measurement")
         theta_start = np.asarray(fit_result.theta)
     noise, turning = _prepared(problem, noise, theta_start, layout)
     if turning.columns.shape[1] and getattr(noise, "marginal", None) is None:

@@ -29,7 +29,7 @@ import numpy as np
 
 from fitstiff._jax import jax, jnp
 from fitstiff.denoise import (denoise_displacement, reversal_samples, segment_velocity,
-                              smooth_acceleration)
+                              smooth_acceleration, turning_points)
 from fitstiff.drive import Drive, drive_from_log
 from fitstiff.errors import InputError
 from fitstiff.guards import check_logs
@@ -125,7 +125,7 @@ class Problem:
                                    what=f"model '{spec}'",
                                    needs_supply="closing_pressure" not in free)
             if den:
-                x = denoise_displacement(log.displacement, seg.reversals)
+                x = denoise_displacement(log.displacement, seg.reversals, noise=seg.noise)
                 drive = eqx.tree_at(lambda d: d.displacement, drive, jnp.asarray(x))
                 if log.time is not None:
                     v = segment_velocity(x, log.time, seg.reversals, noise=seg.noise)
@@ -328,17 +328,25 @@ class Problem:
         return tuple(g.drive.displacement for g in self._groups)
 
     def reversal_noise(self) -> tuple:
-        """Per group ``(L, N)``: the displacement noise (m) at each log's reversal samples, 0
-        elsewhere. An error in a turning point shifts the whole branch after it; this is
-        the errors-in-variables part of the covariance (:mod:`fitstiff.fitting`)."""
+        """Per group ``(L, N)``: the standard error (m) of each log's turning points at their
+        samples, 0 elsewhere - the local fit's (:func:`~fitstiff.denoise.turning_points`)
+        for a denoised log, else the displacement noise. An error in a turning point shifts
+        the whole branch after it; this is the errors-in-variables part of the covariance
+        (:mod:`fitstiff.fitting`) and of the posterior's likelihood."""
         out = []
         for g in self._groups:
             rows = []
             for i in g.index:
                 row = np.zeros(g.force.shape[1])
-                x = np.asarray(self.drives[i].displacement)
-                row[reversal_samples(x, self.segmentations[i].reversals)] = \
-                    self.displacement_noise[i]
+                seg = self.segmentations[i]
+                if self.denoised[i]:
+                    # a denoised log's turning points are local fits: their own errors
+                    index, _, error = turning_points(self.logs[i].displacement,
+                                                     seg.reversals, noise=seg.noise)
+                    row[index] = error
+                else:
+                    x = np.asarray(self.drives[i].displacement)
+                    row[reversal_samples(x, seg.reversals)] = self.displacement_noise[i]
                 rows.append(row)
             out.append(jnp.asarray(np.stack(rows)))
         return tuple(out)

@@ -558,7 +558,22 @@ def _fit_verdict(result: Mapping[str, Any]) -> _Verdict:
     else:
         headline = f"The fit did NOT converge: {result['message']}. Do not use its numbers."
     status = "bad" if not result["converged"] else ("caution" if warnings_ else "ok")
+    if result.get("identifiable") is False:
+        warnings_ = (headline,) + warnings_
+        headline = _not_identifiable(result)
+        status = "bad"
     return _Verdict(status, headline, warnings_)
+
+
+def _not_identifiable(result: Mapping[str, Any]) -> str:
+    """The red headline of a fit (or the fit a posterior started from) whose data do not
+    separate the seal parameters (:mod:`fitstiff.identifiability`)."""
+    details = result.get("identifiability") or {}
+    withheld = list(details.get("parameters", [])) + [
+        split_unit(d)[0] for d in details.get("derived", [])]
+    return ("The data do NOT identify the seal parameters: "
+            f"{result.get('identifiable_reason')} No standard error is given for "
+            f"{', '.join(withheld) or 'the affected quantities'}; do not quote them.")
 
 
 def _posterior_verdict(result: Mapping[str, Any], curves_rms: float) -> _Verdict:
@@ -590,6 +605,10 @@ def _posterior_verdict(result: Mapping[str, Any], curves_rms: float) -> _Verdict
                         f"least-squares fit's {fit['rms_N']:.3g} N: the walkers have not "
                         "found the optimum.")
     status = "bad" if not d["converged"] else ("caution" if cautions else "ok")
+    if result.get("identifiable") is False:
+        details.insert(0, headline)
+        headline = _not_identifiable(result)
+        status = "bad"
     return _Verdict(status, headline, tuple(details + cautions))
 
 

@@ -1,0 +1,113 @@
+"""Peak memory of a 1 M-sample fit (issue 16: at most 1 GB resident).
+
+Writes one ``chamber+dahl`` log of the paper's cylinder at 10 kHz for 100 s (1 000 001
+samples; triangle cycles 0.05-1 mm at 1 mm/s, 0.2 N / 1 um / 2 mbar noise) as a CSV with its
+sidecar, then runs ``load_logs`` + ``fit`` + ``fit.json`` in a fresh subprocess and reports
+its peak resident set size (``resource.getrusage(RUSAGE_SELF).ru_maxrss``), with the peak of
+each stage (loading, building the problem, the solve, the covariance summary; the kernel's
+peak counter is reset between stages through ``/proc/self/clear_refs``).
+
+    python benchmarks/fit_memory.py --json benchmarks/results/fit_memory.json
+    python benchmarks/fit_memory.py --seconds 10          # a 100 000-sample rehearsal
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+RATE_HZ = 10000.0
+
+
+def write_log(folder: Path, seconds: float) -> Path:
+    from fitstiff.log import Rig
+    from fitstiff.programs import TriangleCycles
+    from fitstiff.simulate import Noise, simulate, write_log as write
+
+    amplitudes = (0.05, 0.1, 0.2, 0.5, 1.0)
+    cycles = max(1, int(round(seconds / (4 * sum(amplitudes)))))
+    rig = Rig.from_mapping({"bore_mm": 32, "rod_mm": 0, "stroke_mm": 700,
+                            "start_position_mm": 350, "supply_bar": 6})
+    program = TriangleCycles(amplitudes_mm=amplitudes, cycles=cycles, rate_mm_s=1.0)
+    sim = simulate("chamber+dahl", program, rig=rig, params={"sigma0": 40, "Fc": 18},
+                   noise=Noise(force_N=0.2, displacement_um=1.0, pressure_mbar=2.0), seed=1,
+                   rate_hz=RATE_HZ, name="long")
+    path = folder / "long.csv"
+    write(sim.log, path, truth=sim.truth)
+    return path
+
+
+_CHILD = r"""
+import json, resource, sys, time
+
+def peak_mb():
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+def hwm_mb():
+    for line in open("/proc/self/status"):
+        if line.startswith("VmHWM:"):
+            return int(line.split()[1]) / 1024
+
+def reset():
+    try:
+        with open("/proc/self/clear_refs", "w") as f:
+            f.write("5")
+        return True
+    except OSError:
+        return False
+
+stages = {}
+t0 = time.perf_counter()
+import fitstiff.fitting as fitting
+from fitstiff.loading import load_logs
+from fitstiff.problem import Problem
+stages["import"] = hwm_mb(); reset()
+logs = load_logs([sys.argv[1]])
+stages["load"] = hwm_mb(); reset()
+problem = Problem(logs, "chamber+dahl")
+stages["problem"] = hwm_mb(); reset()
+result = fitting.fit_problem(problem)
+stages["solve_and_summary"] = hwm_mb()
+doc = result.to_dict()
+print(json.dumps({"peak_rss_mb": peak_mb(), "stage_peaks_mb": stages,
+                  "samples": len(logs[0]), "converged": result.converged,
+                  "steps": result.steps, "seconds": time.perf_counter() - t0,
+                  "sigma0_N_per_mm": doc["parameters"]["sigma0"],
+                  "Fc_N": doc["parameters"]["Fc"]}))
+"""
+
+
+def measure(csv: Path) -> dict:
+    out = subprocess.run([sys.executable, "-c", _CHILD, str(csv)], capture_output=True,
+                         text=True, check=False)
+    if out.returncode:
+        raise SystemExit(f"the fit failed:\n{out.stderr[-3000:]}")
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--seconds", type=float, default=100.0)
+    parser.add_argument("--json", type=Path)
+    args = parser.parse_args(argv)
+    with tempfile.TemporaryDirectory() as tmp:
+        start = time.perf_counter()
+        csv = write_log(Path(tmp), args.seconds)
+        print(f"wrote {csv.stat().st_size / 1e6:.0f} MB CSV in "
+              f"{time.perf_counter() - start:.0f} s", flush=True)
+        result = measure(csv)
+    result["command"] = "python benchmarks/fit_memory.py " + " ".join(argv or sys.argv[1:])
+    print(json.dumps(result, indent=1))
+    if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(result, indent=1) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
