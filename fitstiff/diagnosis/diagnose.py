@@ -108,10 +108,14 @@ def diagnose(logs: Sequence[Log], *, baseline: str = "chamber+dahl",
                               noise=noise, weights=weights, alpha=alpha)
         for s in scores:
             first.setdefault(s.effect, s)
+        # refitted in batches of _MAX_REFITS, strongest score first: the next batch only
+        # when none of the previous passed, so no significant candidate stays untried
         promising = sorted((s for s in scores if s.testable and s.p_value * m < alpha),
-                           key=lambda s: s.p_value)[:_MAX_REFITS]
+                           key=lambda s: s.p_value)
         tried = {}
-        for s in promising:
+        for k, s in enumerate(promising):
+            if k and k % _MAX_REFITS == 0 and any(v[3] for v in tried.values()):
+                break
             entries = sp.elements(s.effect, fitted=True)
             hold_c = np.array(hold)
             for name, value in s.one_step.items():
@@ -143,8 +147,9 @@ def diagnose(logs: Sequence[Log], *, baseline: str = "chamber+dahl",
                     why=why)
             else:
                 why = (f"not testable: {s.reason}" if s.reason else
-                       f"significant, but not among the {_MAX_REFITS} strongest refitted "
-                       "in this round" if s.testable and s.p_value * m < alpha else
+                       "significant, but a stronger candidate passed in this round (it is "
+                       "screened again on the enlarged model)" if s.testable
+                       and s.p_value * m < alpha else
                        f"score not significant (p = {s.p_value:.2g}, needs < {alpha / m:.2g})")
                 decided[s.effect] = Candidate(
                     effect=s.effect, score=s.statistic, dof=s.dof, p_value=s.p_value,
