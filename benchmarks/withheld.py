@@ -193,10 +193,12 @@ def log_program(i: int, speed: float, *, pauses: bool = True, holds: bool = True
 LOGS = ((1.5, 200.0), (6.0, 500.0), (25.0, 600.0))
 
 
-def make_dataset(dataset_id: str, *, rate_scale: float = 1.0, substeps: int = SUBSTEPS
-                 ) -> tuple[list, dict[str, object]]:
+def make_dataset(dataset_id: str, *, rate_scale: float = 1.0, substeps: int = SUBSTEPS,
+                 clean: bool = False, short: bool = False) -> tuple[list, dict[str, object]]:
     """The logs of one dataset and its truth (``baseline``, ``effects`` with SI parameters and
-    display sizes, ``expected``, rig and noise draws, programs)."""
+    display sizes, ``expected``, rig and noise draws, programs). ``clean``: no sensor noise
+    (the same draws otherwise). ``short``: triangles and nested loops only (no pauses, holds
+    or sweeps; about 2000 samples in all, for the test suite)."""
     parts = dataset_id.split("/")
     family = parts[0]
     rng = np.random.default_rng([zlib.crc32(dataset_id.encode()), 12])
@@ -220,6 +222,8 @@ def make_dataset(dataset_id: str, *, rate_scale: float = 1.0, substeps: int = SU
             flags = {"pauses": False, "holds": False, "sweeps": True}
         elif parts[1] == "pressure_friction":
             one_pressure = True
+    if short:
+        flags = {"pauses": False, "holds": False, "sweeps": False}
     baseline = "dahl" if "chamber" in effects else "chamber+dahl"
     sigma0 = _loguniform(rng, 25e3, 60e3)
     fc = rng.uniform(12.0, 22.0)
@@ -244,7 +248,7 @@ def make_dataset(dataset_id: str, *, rate_scale: float = 1.0, substeps: int = SU
         log, _ = rs.simulate_log(program, base=base, effects=effects, noise=noise,
                                  rate_hz=rate, substeps=substeps, rng=rng,
                                  name=f"{dataset_id.replace('/', '_')}_{i}", p_ref=p_ref,
-                                 out_of_library=ool)
+                                 out_of_library=ool, clean=clean)
         logs.append(log)
         programs.append({"description": program.description, "rate_hz": rate,
                          "samples": len(log), "x0_mm": base.x0 * 1e3,
@@ -261,15 +265,17 @@ def make_dataset(dataset_id: str, *, rate_scale: float = 1.0, substeps: int = SU
     return logs, truth
 
 
-def run_dataset(dataset_id: str, rate_scale: float = 1.0) -> dict[str, object]:
-    """Generate and diagnose one dataset; the record kept in the JSON."""
+def run_dataset(dataset_id: str, rate_scale: float = 1.0, short: bool = False,
+                candidates: str = "all") -> dict[str, object]:
+    """Generate and diagnose one dataset; the record kept in the JSON. ``short`` and
+    ``candidates`` (fewer than all) make the small version of the test suite."""
     from fitstiff.diagnosis import diagnose
 
     start = time.perf_counter()
     try:
-        logs, truth = make_dataset(dataset_id, rate_scale=rate_scale)
+        logs, truth = make_dataset(dataset_id, rate_scale=rate_scale, short=short)
         sim_s = time.perf_counter() - start
-        d = diagnose(logs, baseline=truth["baseline"], candidates="all")
+        d = diagnose(logs, baseline=truth["baseline"], candidates=candidates)
     except Exception as exc:      # a failure is a result too: keep it, do not stop the run
         return {"id": dataset_id, "error": f"{type(exc).__name__}: {exc}",
                 "traceback": traceback.format_exc(limit=6),

@@ -186,9 +186,13 @@ def test_dataset_ids_interleave_families_and_are_reproducible():
 
 @pytest.mark.slow
 def test_quick_run_of_one_null_and_one_effect_through_the_diagnosis():
-    """A strong viscous effect is found; the null names nothing."""
-    effect = wh.run_dataset("single/viscous/1", rate_scale=0.3)
-    null = wh.run_dataset("null/3", rate_scale=0.3)
+    """A strong viscous effect is found; the null names nothing (short logs, four rate
+    candidates, to keep it near half a minute)."""
+    rate_effects = "viscous,stribeck,time_delay,inertia"
+    effect = wh.run_dataset("single/viscous/1", short=True, candidates=rate_effects)
+    null = wh.run_dataset("null/3", short=True, candidates=rate_effects)
     assert "error" not in effect and "error" not in null, (effect, null)
     assert effect["accepted"] == ["viscous"], wh._line(effect)
     assert null["accepted"] == [], wh._line(null)
+    assert effect["detectability"]["viscous"]["testable"]
+    assert effect["sizes"]["viscous"] > effect["detectability"]["viscous"]["size"]
