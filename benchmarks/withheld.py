@@ -476,6 +476,33 @@ def _save(path: Path, records: Mapping[str, Mapping[str, object]], figure: bool)
         save_figure(summary, path.with_name(path.stem + "_confusion.png"))
 
 
+def run_many(ids: Sequence[str], *, workers: int = 2, rate_scale: float = 1.0,
+             max_crashes: int = 2) -> Iterable[dict[str, object]]:
+    """Diagnose ``ids`` in a pool of ``workers`` processes, a fresh process per dataset
+    (compiled code does not pile up; a crash loses one dataset, not the run). A dataset
+    whose worker died ``max_crashes`` times is recorded as an error."""
+    ctx = multiprocessing.get_context("spawn")
+    pending = list(ids)
+    crashes: dict[str, int] = {}
+    while pending:
+        with cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx,
+                                    max_tasks_per_child=1) as pool:
+            futures = {pool.submit(run_dataset, d, rate_scale): d for d in pending}
+            try:
+                for f in cf.as_completed(futures):
+                    r = f.result()
+                    pending.remove(futures[f])
+                    yield r
+            except cf.process.BrokenProcessPool:
+                # the oldest unfinished datasets were running when a worker died
+                for d in pending[:workers]:
+                    crashes[d] = crashes.get(d, 0) + 1
+                    if crashes[d] >= max_crashes:
+                        pending.remove(d)
+                        yield {"id": d, "error": f"worker crashed {crashes[d]} times",
+                               "wall_s": 0.0}
+
+
 def main(argv: Sequence[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="a small version (8 datasets)")
@@ -501,21 +528,10 @@ def main(argv: Sequence[str] | None = None) -> None:
     print(f"{len(ids)} datasets, {len(ids) - len(todo)} done, {len(todo)} to run "
           f"with {args.workers} worker(s)", flush=True)
     start = time.perf_counter()
-    if args.workers <= 1:
-        results = (run_dataset(d, args.rate_scale) for d in todo)
-        for r in results:
-            records[r["id"]] = r
-            print(_line(r), flush=True)
-            _save(args.json, records, not args.no_figure)
-    else:
-        ctx = multiprocessing.get_context("spawn")
-        with cf.ProcessPoolExecutor(max_workers=args.workers, mp_context=ctx) as pool:
-            futures = [pool.submit(run_dataset, d, args.rate_scale) for d in todo]
-            for f in cf.as_completed(futures):
-                r = f.result()
-                records[r["id"]] = r
-                print(_line(r), flush=True)
-                _save(args.json, records, not args.no_figure)
+    for r in run_many(todo, workers=args.workers, rate_scale=args.rate_scale):
+        records[r["id"]] = r
+        print(_line(r), flush=True)
+        _save(args.json, records, not args.no_figure)
     if not todo and records:
         _save(args.json, records, not args.no_figure)
     summary = score({k: v for k, v in records.items() if k in set(ids)})
