@@ -1,0 +1,198 @@
+"""The withheld-effect benchmark (benchmarks/withheld.py, issue 12): its independent rig
+simulator agrees with fitstiff's, effects enter with the right sign and size, the scores are
+computed right, and a small run goes through the diagnosis."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from benchmarks import rig_sim as rs
+from benchmarks import withheld as wh
+from fitstiff.log import Rig
+from fitstiff.programs import TriangleCycles
+from fitstiff.simulate import Noise, simulate
+
+QUIET = Noise(force_N=0, displacement_um=0, pressure_mbar=0)
+
+
+def _both(spec, params, effects, *, rate=500.0, amplitudes=(0.2, 1.0, 4.0), speed=5.0,
+          x0=0.25, supply=5e5):
+    rig = Rig(bore=0.032, rod=0.0, stroke=0.7, start_position=x0, supply_pressure=supply,
+              dead_length_a=0.02, dead_length_b=0.015)
+    sim = simulate(spec, TriangleCycles(amplitudes_mm=amplitudes, rate_mm_s=speed), rig=rig,
+                   params=params, noise=QUIET, rate_hz=rate)
+    t, x = np.asarray(sim.log.time), np.asarray(sim.log.displacement)
+    base = rs.Base(sigma0=params["sigma0"] * 1e3, Fc=params["Fc"], n=params.get("n", 1.3),
+                   x0=x0, supply=supply, dead_a=0.02, dead_b=0.015)
+    _, truth = rs.simulate_log(None, base=base, effects=effects, clean=True,
+                               fine=rs.piecewise_linear_fine(t, x, 15), substeps=15)
+    return sim, truth
+
+
+def test_rig_simulator_agrees_with_fitstiff_simulate_on_noise_free_chamber_dahl():
+    sim, truth = _both("chamber+dahl", {"sigma0": 40, "Fc": 18, "n": 1.3}, {})
+    force = np.asarray(sim.prediction.force)
+    assert np.ptp(force) > 50      # chamber and friction both at work
+    np.testing.assert_allclose(truth["force"], force, atol=1e-6)
+    np.testing.assert_allclose(truth["p_a"], np.asarray(sim.prediction.pressure_a), atol=1e-3)
+    np.testing.assert_allclose(truth["p_b"], np.asarray(sim.prediction.pressure_b), atol=1e-3)
+
+
+def test_rig_simulator_heat_and_leak_agree_with_fitstiff_to_its_step_error():
+    """Heat exchange and leakage: fitstiff splits the laws per sample, the rig simulator
+    integrates their ODE; at 2 kHz they agree to far below the noise."""
+    params = {"sigma0": 40, "Fc": 18, "n": 1.4, "heat_rate": 2.0, "leak_rate": 0.1}
+    sim, truth = _both("chamber+dahl+heat_transfer+leakage", params,
+                       {"heat_transfer": {"rate": 2.0}, "leakage": {"rate": 0.1}}, rate=2000)
+    quiet, _ = _both("chamber+dahl", {"sigma0": 40, "Fc": 18, "n": 1.4}, {}, rate=2000)
+    effect = np.asarray(sim.prediction.force) - np.asarray(quiet.prediction.force)
+    assert np.abs(effect).max() > 1.0
+    assert np.abs(truth["force"] - np.asarray(sim.prediction.force)).max() < 0.01
+
+
+def _clean(effects, *, program=None, ool=None, **base_kw):
+    program = program or rs.Program(tuple(rs.triangles((0.5, 2.0), 5.0)))
+    base = rs.Base(**base_kw)
+    return rs.simulate_log(program, base=base, effects=effects, clean=True, rate_hz=400,
+                           out_of_library=ool or {})[1]
+
+
+def test_viscous_injection_adds_c_times_velocity():
+    plain, visc = _clean({}), _clean({"viscous": {"c": 100.0}})
+    t, x = plain["time"], plain["x_sensor"]
+    v = np.gradient(x, t)
+    moving = np.abs(np.abs(v) - 5e-3) < 1e-6     # the constant-speed legs, 5 mm/s
+    diff = visc["force"] - plain["force"]
+    np.testing.assert_allclose(diff[moving], 100.0 * v[moving], rtol=0.02, atol=0.01)
+
+
+def test_time_delay_injection_makes_the_force_lag():
+    plain, late = _clean({}), _clean({"time_delay": {"delay": 0.01}})
+    t = plain["time"]
+    np.testing.assert_allclose(late["force"][t > 0.02], np.interp(t[t > 0.02] - 0.01, t,
+                                                                  plain["force"]), atol=0.05)
+
+
+def test_dwell_stiction_raises_the_breakaway_after_a_pause_only():
+    program = rs.Program((rs.leg(1.0, 5.0), rs.leg(-1.0, 5.0), rs.pause(2.0), rs.leg(6.0, 5.0)))
+    plain = _clean({}, program=program)
+    dwell = _clean({"dwell_stiction": {"gain": 0.5, "tau": 0.5, "decay": 1e-3}},
+                   program=program)
+    diff = dwell["force"] - plain["force"]
+    t = plain["time"]
+    before_pause = t < 0.55
+    assert np.abs(diff[before_pause]).max() < 1e-9
+    # after the pause, toward B: an extra breakaway below gain * (1 - exp(-4)) * Fc, faded
+    # over the ~0.5 mm the Dahl branch needs to reach it
+    assert 0.5 * 18 > diff.max() > 0.5 * 18 * 0.2
+    assert abs(diff[-1]) < 0.1 * diff.max()
+
+
+def test_rig_compliance_softens_the_loop():
+    plain, soft = _clean({}), _clean({"rig_compliance": {"compliance": 1e-5}})
+    # the stiff pre-sliding slope after a reversal is reduced: K / (1 + C K)
+    i = int(np.argmax(plain["x_sensor"]))
+    j = i + 6
+    k_plain = (plain["force"][j] - plain["force"][i]) / (plain["x_sensor"][j] - plain["x_sensor"][i])
+    k_soft = (soft["force"][j] - soft["force"][i]) / (soft["x_sensor"][j] - soft["x_sensor"][i])
+    assert k_soft == pytest.approx(k_plain / (1 + 1e-5 * k_plain), rel=0.1)
+    # piston moves less than the sensor by C F
+    np.testing.assert_allclose(soft["x_sensor"] - soft["x_piston"], 1e-5 * soft["force"],
+                               atol=2e-7)
+
+
+def test_wilson_interval_matches_the_closed_form():
+    low, high = wh.wilson(0, 100)
+    assert low == pytest.approx(0.0, abs=1e-12) and high == pytest.approx(0.0370, abs=2e-4)
+    low, high = wh.wilson(5, 100)
+    assert (low, high) == pytest.approx((0.02154, 0.11175), abs=2e-4)
+    assert wh.wilson(0, 0) == (0.0, 1.0)
+
+
+def _rec(family, withheld, accepted, top1=None, size=1.0, det=0.5):
+    return {"id": f"{family}/{'+'.join(withheld)}/{len(accepted)}{top1}{size}",
+            "family": family, "withheld": withheld, "expected": withheld if family in
+            ("single", "pair") else [], "accepted": accepted,
+            "top1": top1 or (accepted[0] if accepted else None),
+            "sizes": {e: size for e in withheld},
+            "detectability": {e: {"testable": family != "missing", "size": det}
+                              for e in withheld},
+            "shrink": 0.9 if accepted else None, "unexplained_cells": 0 if accepted else 2,
+            "wall_s": 10.0}
+
+
+def test_scores_and_confusion_matrix_on_hand_made_results():
+    recs = [_rec("single", ["viscous"], ["viscous"]),
+            _rec("single", ["viscous"], [], top1="viscous", size=0.1),
+            _rec("single", ["stribeck"], ["time_delay"]),
+            _rec("single", ["stribeck"], ["stribeck", "time_delay"]),
+            _rec("null", [], []), _rec("null", [], ["inertia"]), _rec("null", [], []),
+            _rec("ool", [], []), _rec("ool", [], ["maxwell_slip"]),
+            _rec("pair", ["viscous", "inertia"], ["inertia", "viscous"]),
+            _rec("pair", ["viscous", "inertia"], ["viscous"]),
+            _rec("missing", ["dwell_stiction"], [])]
+    for i, r in enumerate(recs):
+        r["id"] += str(i)
+    s = wh.score({r["id"]: r for r in recs})
+    assert s["single"]["top1"]["k"] == 3 and s["single"]["top1"]["n"] == 4
+    assert s["single"]["exact"]["k"] == 1
+    assert s["null"]["false_alarm"]["k"] == 1 and s["null"]["false_alarm"]["n"] == 3
+    assert s["null"]["false_alarm"]["wilson95"] == pytest.approx(list(wh.wilson(1, 3)))
+    assert s["ool"]["unexplained"]["k"] == 1
+    assert s["pair"]["both_found"]["k"] == 1
+    assert s["missing"]["not_testable"]["k"] == 1
+    # viscous 0.1 below its detectable size 0.5; the other three above: 2 of 3 found
+    assert s["detectability"]["above"]["k"] == 2 and s["detectability"]["above"]["n"] == 3
+    assert s["detectability"]["below"]["n"] == 1
+    rows, cols, counts = wh.confusion(recs)
+    assert rows == ["viscous", "stribeck", "none", "out-of-library"]
+    c = dict(zip(cols, range(len(cols))))
+    assert counts[0, c["viscous"]] == 1 and counts[0, c["none"]] == 1
+    assert counts[1, c["time_delay"]] == 1 and counts[1, c["stribeck"]] == 1
+    assert counts[2, c["none"]] == 2 and counts[2, c["inertia"]] == 1
+    assert counts[3, c["maxwell_slip"]] == 1
+    assert counts.sum() == 9
+
+
+def test_plot_confusion_draws_on_the_given_axes():
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots()
+    out = wh.plot_confusion(ax, ["viscous", "none"], ["viscous", "none"],
+                            np.array([[3, 1], [0, 5]]))
+    assert out is ax and len(ax.texts) == 3
+    plt.close(fig)
+
+
+def test_dataset_ids_interleave_families_and_are_reproducible():
+    ids = wh.dataset_ids(seeds=2, nulls=4, pair_seeds=1)
+    assert len(ids) == len(set(ids)) == 13 * 2 + 4 + 3 * 2 + 8 + 2 * 2
+    assert {i.split("/")[0] for i in ids[: len(ids) // 2 + 8]} == set(wh.FAMILIES)
+    a, ta = wh.make_dataset("single/viscous/3", rate_scale=0.2)
+    b, tb = wh.make_dataset("single/viscous/3", rate_scale=0.2)
+    assert ta["sizes"] == tb["sizes"] and np.array_equal(a[0].force, b[0].force)
+    low, high = wh.SIZES["viscous"]
+    assert low <= ta["sizes"]["viscous"] <= high
+    _, miss = wh.make_dataset("missing/pressure_friction/0", rate_scale=0.2)
+    assert len({round(p["supply_bar"], 9) for p in miss["logs"]}) == 1
+    assert all(0 < p["x0_mm"] < 700 for p in miss["logs"])
+    assert not math.isnan(ta["base"]["Fc_N"])
+
+
+@pytest.mark.slow
+def test_quick_run_of_one_null_and_one_effect_through_the_diagnosis():
+    """A strong viscous effect is found; the null names nothing (short logs, four rate
+    candidates, to keep it near half a minute)."""
+    rate_effects = "viscous,stribeck,time_delay,inertia"
+    effect = wh.run_dataset("single/viscous/1", short=True, candidates=rate_effects)
+    null = wh.run_dataset("null/3", short=True, candidates=rate_effects)
+    assert "error" not in effect and "error" not in null, (effect, null)
+    assert effect["accepted"] == ["viscous"], wh._line(effect)
+    assert null["accepted"] == [], wh._line(null)
+    assert effect["detectability"]["viscous"]["testable"]
+    assert effect["sizes"]["viscous"] > effect["detectability"]["viscous"]["size"]
