@@ -135,6 +135,7 @@ class Problem:
                                                 acceleration=None if a is None
                                                 else jnp.asarray(a))
             self.drives.append(drive)
+        self.drives = _same_structure(self.drives)
         built = build_model(model, drives=self.drives) if isinstance(model, str) else model
         fixed_values = ({k: v for k, v in fix.items() if v is not None}
                         if isinstance(fix, Mapping) else {})
@@ -476,3 +477,31 @@ def _pad_drive(drive: Drive, n: int) -> Drive:
                       else jnp.asarray(_pad(drive.acceleration, n, fill=0.0))),
         measured_force=(None if drive.measured_force is None
                         else jnp.asarray(_pad(drive.measured_force, n))))
+
+
+def _same_structure(drives: list[Drive]) -> list[Drive]:
+    """Drives that all carry a velocity (and acceleration) when one does.
+
+    ``denoise="auto"`` denoises only the logs whose displacement is noisy, and logs of one
+    length are stacked into a batch; a log left as measured gets the difference quotients
+    the model would take itself (the same values), so the batch has one structure.
+    """
+    out = list(drives)
+    for field in ("velocity", "acceleration"):
+        if not any(getattr(d, field) is not None for d in out):
+            continue
+        for k, d in enumerate(out):
+            if getattr(d, field) is not None:
+                continue
+            t = np.asarray(d.time, dtype=float)
+            dt = np.diff(t, prepend=2 * t[0] - t[1]) if t.size > 1 else np.ones(t.size)
+            x = np.asarray(d.displacement, dtype=float)
+            v = (np.asarray(d.velocity) if d.velocity is not None
+                 else np.diff(x, prepend=x[0]) / dt)
+            if field == "velocity":
+                value = v
+            else:
+                dt_mid = 0.5 * (dt + np.append(dt[1:], dt[-1]))
+                value = np.diff(v, append=v[-1]) / dt_mid
+            out[k] = dataclasses.replace(d, **{field: jnp.asarray(value)})
+    return out

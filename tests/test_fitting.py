@@ -5,6 +5,7 @@ from __future__ import annotations
 import hashlib
 import json
 
+import numpy as np
 import pytest
 from conftest import REALDATA
 
@@ -169,3 +170,24 @@ def test_closing_pressure_can_be_a_per_log_nuisance():
     assert [log["closing_pressure_bar"] for log in result.per_log] == [
         pytest.approx(2.0, abs=0.01), pytest.approx(5.0, abs=0.01)]
     assert result.value("n") == pytest.approx(1.3, abs=0.02)
+
+
+def test_logs_denoised_and_left_as_measured_fit_together():
+    """denoise='auto' denoises only noisy displacements; a batch of one noisy and one exact log
+    crashed stacking drives with and without a velocity (found by benchmarks/withheld.py)."""
+    from fitstiff.problem import Problem
+    from fitstiff.programs import TriangleCycles
+    from fitstiff.simulate import Noise, simulate
+
+    rig = Rig(bore=0.032, rod=0.0, stroke=0.7, start_position=0.35, supply_pressure=5e5)
+    program = TriangleCycles(amplitudes_mm=(0.2, 1.0), rate_mm_s=5.0)
+    logs = [simulate("chamber+dahl", program, rig=rig, seed=k, name=f"l{k}",
+                     noise=Noise(displacement_um=du)).log for k, du in enumerate((1.0, 0.0))]
+    problem = Problem(logs, "chamber+dahl")
+    assert problem.denoised == [True, False]
+    exact = problem.drives[1]
+    x, t = np.asarray(exact.displacement), np.asarray(exact.time)
+    np.testing.assert_allclose(np.asarray(exact.velocity)[1:], np.diff(x) / np.diff(t))
+    result = fit(logs, "chamber+dahl")
+    assert result.converged
+    assert result.value("sigma0") == pytest.approx(40e3, rel=0.05)

@@ -24,6 +24,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
+from concurrent.futures import ThreadPoolExecutor
 from collections.abc import Sequence
 
 import numpy as np
@@ -34,6 +36,7 @@ from fitstiff.errors import InputError
 __all__ = ["Fold", "HeldOut", "folds_for", "held_out"]
 
 MAX_LOOP_FOLDS = 4
+_WORKERS = min(2, os.cpu_count() or 1)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -94,9 +97,9 @@ def held_out(sp: SuperProblem, folds: Sequence[Fold], theta: np.ndarray, hold: n
     free_model = sp.model_mask(active)
     free_model[extra] = True
     none = np.zeros(sp.n_model, dtype=bool)
-    residuals = [np.zeros(len(log)) for log in p.logs]
-    converged, steps = True, 0
-    for fold in folds:
+
+    def one(fold: Fold):
+        """``(log, sample mask or None, residual, converged, steps)`` of one fold."""
         if fold.log is not None:
             others = [i for i in range(p.n_logs) if i != fold.log]
             th, ok1, s1, _ = sp.solve(theta, hold, free_model, sp.nuisance_mask(others),
@@ -106,18 +109,28 @@ def held_out(sp: SuperProblem, folds: Sequence[Fold], theta: np.ndarray, hold: n
             th, ok2, s2, _ = sp.solve(th, x, none, sp.nuisance_mask([fold.log]),
                                       sp.entry_weights(logs=[fold.log]))
             force = sp.forces(x, th)[fold.log]
-            residuals[fold.log] = force - np.asarray(p.logs[fold.log].force)
-            converged &= ok1 and ok2
-            steps += s1 + s2
+            return (fold.log, None, force - np.asarray(p.logs[fold.log].force), ok1 and ok2,
+                    s1 + s2)
+        i, mask = fold.samples
+        th, ok, s1, _ = sp.solve(theta, hold, free_model, sp.nuisance_mask(),
+                                 sp.entry_weights(samples={i: ~mask}))
+        x = np.asarray(sp.physical(th, hold, free_model))
+        force = sp.forces(x, th)[i]
+        return i, mask, force - np.asarray(p.logs[i].force), ok, s1
+
+    # the folds are independent: two at a time on two cores (the compiled scan runs on one
+    # core and releases the GIL); the results do not depend on the order
+    with ThreadPoolExecutor(max_workers=_WORKERS) as pool:
+        done = list(pool.map(one, folds))
+    residuals = [np.zeros(len(log)) for log in p.logs]
+    converged, steps = True, 0
+    for i, mask, res, ok, s in done:
+        if mask is None:
+            residuals[i] = res
         else:
-            i, mask = fold.samples
-            th, ok, s1, _ = sp.solve(theta, hold, free_model, sp.nuisance_mask(),
-                                     sp.entry_weights(samples={i: ~mask}))
-            x = np.asarray(sp.physical(th, hold, free_model))
-            force = sp.forces(x, th)[i]
-            residuals[i][mask] = (force - np.asarray(p.logs[i].force))[mask]
-            converged &= ok
-            steps += s1
+            residuals[i][mask] = res[mask]
+        converged &= bool(ok)
+        steps += s
     sq, count, per_log = 0.0, 0, []
     for i, res in enumerate(residuals):
         keep = p.sample_weights[i] > 0

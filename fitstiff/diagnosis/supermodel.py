@@ -20,6 +20,7 @@ predictions) all call the same compiled functions:
 from __future__ import annotations
 
 import dataclasses
+import threading
 from collections.abc import Mapping, Sequence
 
 import equinox as eqx
@@ -188,6 +189,7 @@ class SuperProblem:
                          int(self.model_mask(self.baseline_terms).sum()) + largest
                          + (self.size - self.n_model)}
         self._solvers: dict[int, _Solve] = {}
+        self._lock = threading.Lock()
         self._jac = jax.jit(self._jacobian_impl)
         self._forces = jax.jit(self._forces_impl)
         self._column = jax.jit(self._column_impl)
@@ -272,14 +274,16 @@ class SuperProblem:
         one more (rounded up to a multiple of 4, so a greedy round compiles at most once).
         """
         free = np.flatnonzero(np.concatenate([free_model, free_nuisance]))
-        size = next((k for k in sorted(self._lengths) if k >= free.size), None)
-        if size is None:       # accepted effects enlarged the model: one more length
-            size = 4 * -(-free.size // 4)
-            self._lengths.add(size)
+        with self._lock:       # held-out folds solve from two threads
+            size = next((k for k in sorted(self._lengths) if k >= free.size), None)
+            if size is None:       # accepted effects enlarged the model: one more length
+                size = 4 * -(-free.size // 4)
+                self._lengths.add(size)
+            solver = self._solver(size)
         index = np.full(size, self.size)          # the padding slot: theta[size] is unused
         index[:free.size] = free
         theta_pad = np.append(np.asarray(theta0, dtype=float), 0.0)
-        theta, result, steps, cost = self._solver(size)(
+        theta, result, steps, cost = solver(
             jnp.asarray(theta_pad), jnp.asarray(index), jnp.asarray(hold),
             jnp.asarray(free_model), jnp.asarray(weights), max_steps)
         ok = int(result) == CONVERGED and bool(np.isfinite(cost))
