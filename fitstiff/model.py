@@ -57,6 +57,18 @@ class Prediction(NamedTuple):
     pressure_b: jnp.ndarray
 
 
+def time_steps(t):
+    """``(dt, dt_mid)``: each sample's step from the previous one (the first mirrors the
+    second) and the mean of the steps either side (the last repeats)."""
+    dt = jnp.diff(t, prepend=2 * t[0] - t[1])
+    return dt, 0.5 * (dt + jnp.append(dt[1:], dt[-1]))
+
+
+def difference_acceleration(v, dt_mid):
+    """The forward difference of the velocity ``v`` over ``dt_mid``."""
+    return jnp.diff(v, append=v[-1]) / dt_mid
+
+
 class Model(eqx.Module):
     """An immutable sum of terms. Build it with :func:`build_model`."""
 
@@ -122,7 +134,7 @@ class Model(eqx.Module):
         for term in self.of_kind("input"):
             x = term.transform_input(drive, x)
         t = drive.time
-        dt = jnp.diff(t, prepend=2 * t[0] - t[1])
+        dt, dt_mid = time_steps(t)
         dx = jnp.diff(x, prepend=x[0])
         if drive.velocity is None:
             v = dx / dt
@@ -132,9 +144,8 @@ class Model(eqx.Module):
             # leaves the smoothed velocity as it is)
             shift = x - drive.displacement
             v = drive.velocity + jnp.diff(shift, prepend=shift[0]) / dt
-        dt_mid = 0.5 * (dt + jnp.append(dt[1:], dt[-1]))
         if drive.acceleration is None:
-            a = jnp.diff(v, append=v[-1]) / dt_mid
+            a = difference_acceleration(v, dt_mid)
         else:
             # the smoothed acceleration of the measured displacement, without the input
             # terms' change: a compliance's is the second difference of the measured force,

@@ -34,7 +34,7 @@ from fitstiff.drive import Drive, drive_from_log
 from fitstiff.errors import InputError
 from fitstiff.guards import check_logs
 from fitstiff.log import Log
-from fitstiff.model import Model, build_model, parse_spec
+from fitstiff.model import Model, build_model, difference_acceleration, parse_spec, time_steps
 from fitstiff.params import Parameterization, find_param, named_params
 from fitstiff.segmentation import REGIONS, Segmentation, estimate_noise, segment
 
@@ -493,15 +493,9 @@ def _same_structure(drives: list[Drive]) -> list[Drive]:
         for k, d in enumerate(out):
             if getattr(d, field) is not None:
                 continue
-            t = np.asarray(d.time, dtype=float)
-            dt = np.diff(t, prepend=2 * t[0] - t[1]) if t.size > 1 else np.ones(t.size)
-            x = np.asarray(d.displacement, dtype=float)
-            v = (np.asarray(d.velocity) if d.velocity is not None
-                 else np.diff(x, prepend=x[0]) / dt)
-            if field == "velocity":
-                value = v
-            else:
-                dt_mid = 0.5 * (dt + np.append(dt[1:], dt[-1]))
-                value = np.diff(v, append=v[-1]) / dt_mid
+            dt, dt_mid = time_steps(d.time)
+            x = d.displacement
+            v = d.velocity if d.velocity is not None else jnp.diff(x, prepend=x[0]) / dt
+            value = v if field == "velocity" else difference_acceleration(v, dt_mid)
             out[k] = dataclasses.replace(d, **{field: jnp.asarray(value)})
     return out
