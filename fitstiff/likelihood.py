@@ -43,6 +43,15 @@ becomes ``e'e - v'M v`` (Woodbury). The pressure channels' sensitivity to a micr
 reversal (a few Pa against hundreds) is left out. ``student_t`` has no such closed form and
 leaves the turning points out.
 
+**Linear nuisances** (``gaussian`` and ``ar1``). The per-log force offsets enter the residuals
+linearly (``r = r_0 + a c``), so under their flat priors they are integrated out exactly
+instead of sampled (:class:`LinearNuisances`): their whitened columns ``G`` join ``W`` with
+prior precision 0, ``A = [W, G]``, ``P = diag(1 (turning points), 0 (offsets))``, ``b = A'e``,
+the sum of squares becomes ``q = e'e - b'(P + A'A)^-1 b`` and each series contributes
+``-((n - k)/2) log q`` with ``k`` its flat columns (the Jeffreys-scale marginal loses one
+degree of freedom per flat column). Sampling is then in fewer, better-conditioned coordinates;
+:meth:`_Quadratic.linear_draws` draws the offsets from their exact conditional afterwards.
+
 A noise model is a small frozen dataclass. :meth:`~NoiseModel.prepared` fills in what it
 estimates from the least-squares residuals (returning a new instance);
 :meth:`~NoiseModel.log_likelihood` is a pure JAX function of the residual vector (``jit`` /
@@ -70,6 +79,7 @@ __all__ = [
     "Layout",
     "NoiseModel",
     "StudentT",
+    "LinearNuisances",
     "TurningPoints",
     "noise_from_dict",
     "noise_model",
@@ -188,12 +198,67 @@ class TurningPoints:
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
-class _Marginal:
-    """Precomputed Woodbury terms of the turning points for one prepared noise model."""
+class LinearNuisances:
+    """Entries of ``theta`` the residuals are linear in (the per-log force offsets), as columns
+    of the residual vector, to be integrated out under flat priors (see the module docstring).
 
-    whitened: np.ndarray   # (R, m) W
-    inverse: np.ndarray    # (m, m) (I + W'W)^-1
-    series: np.ndarray     # (m,)
+    Attributes:
+        columns: ``(R, k)``: ``d r / d theta_j`` of each entry (exact: ``r`` is linear in it).
+        series: ``(k,)`` the series each column lives in (one series per column).
+        index: ``(k,)`` the entries' positions in ``theta``.
+    """
+
+    columns: np.ndarray
+    series: np.ndarray
+    index: np.ndarray
+
+    @classmethod
+    def at(cls, problem: Problem, theta, layout: Layout, index: Sequence[int]) -> LinearNuisances:
+        """The columns of ``theta[index]`` (one forward-mode Jacobian); raises ``ValueError``
+        when an entry's column spans more than one series or the residuals are not linear
+        in it."""
+        index = np.asarray(index, dtype=int)
+        theta = jnp.asarray(theta)
+        if not index.size:
+            return cls(np.zeros((layout.size, 0)), np.zeros(0, dtype=int), index)
+
+        def residuals(values):
+            return problem.residuals(theta.at[index].set(values))
+
+        start = theta[index]
+        columns = np.array(jax.jacfwd(residuals)(start))
+        moved = np.asarray(residuals(start + 1.0)) - np.asarray(residuals(start))
+        if not np.allclose(moved, columns.sum(axis=1), rtol=1e-6,
+                           atol=1e-9 * (1.0 + np.abs(moved).max())):
+            raise ValueError("the residuals are not linear in the entries "
+                             f"{[problem.names[i] for i in index]}")
+        series = []
+        for j in range(index.size):
+            touched = np.unique(layout.segment[columns[:, j] != 0.0])
+            if touched.size != 1:
+                raise ValueError(f"{problem.names[index[j]]} acts on {touched.size} series")
+            series.append(int(touched[0]))
+        return cls(columns, np.asarray(series, dtype=int), index)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class _Marginal:
+    """Precomputed Woodbury terms of the columns integrated out (turning points with their
+    N(0, 1) priors, linear nuisances with flat ones) for one prepared noise model."""
+
+    whitened: np.ndarray   # (R, m + k) A = [W, G]
+    inverse: np.ndarray    # (m + k, m + k) (P + A'A)^-1, P = diag(1 (turning), 0 (linear))
+    series: np.ndarray     # (m + k,)
+    flat: np.ndarray       # (S,) number of flat-prior columns per series
+    linear: int = 0        # k: the last k columns are the linear nuisances
+
+    def solve(self, e):
+        """``(z, q)`` for whitened residuals ``e``: the most probable column coefficients
+        ``z = -(P + A'A)^-1 A'e`` and the per-column-set reduction ``b'(P + A'A)^-1 b`` of the
+        sum of squares, per entry of ``z`` (summed per series by the caller)."""
+        b = jnp.asarray(self.whitened).T @ e
+        mb = jnp.asarray(self.inverse) @ b
+        return -mb, b * mb
 
 
 class NoiseModel:
@@ -201,10 +266,17 @@ class NoiseModel:
 
     name: ClassVar[str]
 
+    #: whether :meth:`prepared` can integrate linear nuisances out (``linear=``)
+    integrates_linear: ClassVar[bool] = False
+
     def prepared(self, residuals: np.ndarray, layout: Layout, *,
-                 turning_points: TurningPoints | None = None) -> NoiseModel:
+                 turning_points: TurningPoints | None = None,
+                 linear: LinearNuisances | None = None) -> NoiseModel:
         """This model with the settings it estimates from the least-squares residuals (and,
-        where the model can, the turning-point errors integrated out)."""
+        where the model can, the turning-point errors and the ``linear`` nuisances
+        integrated out)."""
+        if linear is not None and linear.columns.shape[1]:
+            raise ValueError(f"{self.name} cannot integrate linear nuisances out")
         return self
 
     def log_likelihood(self, residuals, layout: Layout):
@@ -240,6 +312,7 @@ class _Quadratic(NoiseModel):
 
     sigma: float | None = None
     marginal: _Marginal | None = None
+    integrates_linear: ClassVar[bool] = True
 
     def whiten(self, residuals, layout: Layout):
         raise NotImplementedError
@@ -247,19 +320,34 @@ class _Quadratic(NoiseModel):
     def _estimated(self, residuals: np.ndarray, layout: Layout) -> _Quadratic:
         return self
 
-    def prepared(self, residuals, layout, *, turning_points=None):
+    def prepared(self, residuals, layout, *, turning_points=None, linear=None):
         model = self._estimated(np.asarray(residuals), layout)
-        if turning_points is None or not turning_points.columns.shape[1]:
+        m = 0 if turning_points is None else turning_points.columns.shape[1]
+        k = 0 if linear is None else linear.columns.shape[1]
+        if not m + k:
             return model
-        if model.sigma is None:
-            e = model.whiten(jnp.asarray(residuals), layout)
-            scale = np.sqrt(np.asarray(layout.per_series(e**2)) / layout.counts)
-        else:
-            scale = np.full(len(layout.series), model.sigma)
         whiten = jax.vmap(lambda c: model.whiten(c, layout), in_axes=1, out_axes=1)
-        w = np.asarray(whiten(jnp.asarray(turning_points.columns))) / scale[layout.segment, None]
-        inverse = np.linalg.inv(np.eye(w.shape[1]) + w.T @ w)
-        return dataclasses.replace(model, marginal=_Marginal(w, inverse, turning_points.series))
+        parts, series = [], []
+        if m:
+            if model.sigma is None:
+                e = model.whiten(jnp.asarray(residuals), layout)
+                scale = np.sqrt(np.asarray(layout.per_series(e**2)) / layout.counts)
+            else:
+                scale = np.full(len(layout.series), model.sigma)
+            parts.append(np.asarray(whiten(jnp.asarray(turning_points.columns)))
+                         / scale[layout.segment, None])
+            series.append(turning_points.series)
+        if k:
+            # flat prior: the column's scale does not matter
+            parts.append(np.asarray(whiten(jnp.asarray(linear.columns))))
+            series.append(linear.series)
+        a = np.concatenate(parts, axis=1)
+        precision = np.diag(np.r_[np.ones(m), np.zeros(k)])
+        inverse = np.linalg.inv(precision + a.T @ a)
+        flat = np.bincount(np.asarray(series[-1]) if k else np.zeros(0, dtype=int),
+                           minlength=len(layout.series))
+        return dataclasses.replace(model, marginal=_Marginal(
+            a, inverse, np.concatenate(series), flat, k))
 
     def _squares(self, residuals, layout: Layout):
         e = self.whiten(residuals, layout)
@@ -267,15 +355,46 @@ class _Quadratic(NoiseModel):
         if self.marginal is None:
             return q
         m = self.marginal
-        v = jnp.asarray(m.whitened).T @ e
+        _, reduction = m.solve(e)
         members = _membership(m.series, np.ones(m.series.size, bool), len(layout.series))
-        return q - (v * (jnp.asarray(m.inverse) @ v)) @ members
+        return q - reduction @ members
 
     def log_likelihood(self, residuals, layout: Layout):
         q = self._squares(residuals, layout)
         if self.sigma is None:
-            return -0.5 * jnp.sum(jnp.asarray(layout.counts) * jnp.log(q))
+            # the scale integrated out: q^(-(n - k)/2) with k flat columns in the series
+            return -0.5 * jnp.sum(jnp.asarray(self.dof(layout)) * jnp.log(q))
         return -0.5 * jnp.sum(q) / self.sigma**2
+
+    def dof(self, layout: Layout) -> np.ndarray:
+        """Per series: data less the flat-prior columns integrated out of it."""
+        flat = 0 if self.marginal is None else self.marginal.flat
+        return np.asarray(layout.counts - flat)
+
+    def linear_draws(self, residuals, layout: Layout, normal, chi2):
+        """A draw of the integrated linear nuisances given the other entries, as corrections
+        ``(k,)`` to the values ``residuals`` were computed at. Their conditional posterior is
+        normal around the least-squares correction with covariance ``s**2 (P + A'A)^-1``; the
+        scale ``s`` of each series is drawn from its conditional ``q / chi2``.
+
+        Args:
+            residuals: the residual vector (nuisances at their stored values).
+            layout: the series.
+            normal: ``(m + k,)`` standard normal deviates.
+            chi2: ``(S,)`` chi-square deviates with :meth:`dof` degrees of freedom.
+        """
+        m = self.marginal
+        e = self.whiten(residuals, layout)
+        z, reduction = m.solve(e)
+        members = _membership(m.series, np.ones(m.series.size, bool), len(layout.series))
+        q = layout.per_series(e**2) - reduction @ members
+        s = (jnp.sqrt(q / chi2) if self.sigma is None
+             else jnp.full(len(layout.series), self.sigma))
+        root = jnp.asarray(np.linalg.cholesky(0.5 * (m.inverse + m.inverse.T)))
+        # the inverse is block-diagonal by series (no column spans two), so scaling the
+        # deviates by their series' s first scales each block's draw by its own s
+        draw = z + root @ (normal * s[m.series])
+        return draw[m.series.size - m.linear:]
 
     def _check_sigma(self) -> None:
         if self.sigma is not None and not (math.isfinite(self.sigma) and self.sigma > 0):
@@ -319,7 +438,8 @@ class StudentT(NoiseModel):
             raise InputError(None, "noise model 'student_t'", f"nu = {self.nu!r}",
                              "give degrees of freedom > 0 (4 is robust to outliers)")
 
-    def prepared(self, residuals, layout, *, turning_points=None):
+    def prepared(self, residuals, layout, *, turning_points=None, linear=None):
+        super().prepared(residuals, layout, linear=linear)
         if self.scale is not None:
             return self
         # the median |r| of a t_nu variable of scale s is s * t_nu.ppf(0.75)

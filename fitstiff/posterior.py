@@ -83,7 +83,8 @@ from fitstiff.derived import DERIVED, derived_quantities, split_unit
 from fitstiff.errors import InputError
 from fitstiff.fitting import FitResult, fit_problem
 from fitstiff.guards import nonfinite_error
-from fitstiff.likelihood import Layout, NoiseModel, TurningPoints, noise_from_dict
+from fitstiff.likelihood import (Layout, LinearNuisances, NoiseModel, TurningPoints,
+                                 noise_from_dict)
 from fitstiff.log import Log
 from fitstiff.model import Model
 from fitstiff.params import Parameterization
@@ -93,11 +94,14 @@ from fitstiff.problem import PROBLEM_OPTIONS, Problem
 __all__ = [
     "CALIBRATION_NOTE",
     "CHAIN",
+    "DEFAULT_MOVES",
     "DEFAULT_NOISE_MODEL",
     "INFERENCE_DATA",
+    "KEPT",
     "PREDICTIVE",
     "Diagnostics",
     "LogPosterior",
+    "MOVES",
     "Posterior",
     "log_posterior",
     "sample_posterior",
@@ -108,10 +112,18 @@ DEFAULT_NOISE_MODEL = "ar1"
 CHAIN = "chain.h5"                  # the emcee chain (HDF5 backend), resumable
 INFERENCE_DATA = "posterior.nc"     # ArviZ InferenceData (netCDF)
 PREDICTIVE = "predictive.npz"       # model-force draws for the report
+KEPT = "kept_theta"                 # chain.h5 fitstiff/kept_theta: full theta of the kept draws
 #: measured 90 % interval coverage (``python benchmarks/calibration.py --datasets 50 --steps
 #: 12000``, results in benchmarks/results/calibration_50.json)
 CALIBRATION_NOTE = ("50 synthetic datasets: ar1 (default) covered the slope in 86 % and the "
                     "breakaway in 92 %; white gaussian 54 % and 60 %")
+#: emcee proposals (``moves``): name -> factory of emcee's ``moves`` argument
+MOVES: dict[str, Callable[[], list]] = {
+    "de": lambda: [(emcee.moves.DEMove(), 1.0)],
+    "de+snooker": lambda: [(emcee.moves.DEMove(), 0.8), (emcee.moves.DESnookerMove(), 0.2)],
+    "stretch": lambda: [(emcee.moves.StretchMove(), 1.0)],
+}
+DEFAULT_MOVES = "de"
 _BALL = 0.1                 # start ball: this times the Laplace standard deviations
 _BALL_FLOOR = 1e-4          # ... and at least this in theta units (undetermined directions)
 _BURN_IN_TAUS = 5.0
@@ -131,12 +143,15 @@ class Diagnostics:
 
     Attributes:
         acceptance_fraction: per walker.
-        autocorr_time: integrated autocorrelation time (steps) per ``theta`` name.
+        autocorr_time: integrated autocorrelation time (steps) per sampled coordinate.
         effective_samples: walkers x kept steps / autocorrelation time, per name.
         converged, reason: the verdict of the convergence rules and why.
         steps, walkers, discard, thin: chain length, ensemble size, burn-in and thinning used.
         tau_multiple: the required chain length in autocorrelation times.
         noise_model: the noise model's name.
+        integrated: names integrated out analytically instead of sampled (the force offsets;
+            no autocorrelation time: each kept step holds an exact conditional draw).
+        moves: the emcee proposal (a key of :data:`MOVES`).
     """
 
     acceptance_fraction: np.ndarray
@@ -150,6 +165,8 @@ class Diagnostics:
     thin: int
     tau_multiple: float
     noise_model: str
+    integrated: tuple[str, ...] = ()
+    moves: str = DEFAULT_MOVES
 
     def to_dict(self) -> dict[str, object]:
         return {"acceptance_fraction": float(np.mean(self.acceptance_fraction)),
@@ -159,7 +176,8 @@ class Diagnostics:
                 "effective_samples": {k: _or_none(v) for k, v in self.effective_samples.items()},
                 "converged": self.converged, "reason": self.reason, "steps": self.steps,
                 "walkers": self.walkers, "discard": self.discard, "thin": self.thin,
-                "tau_multiple": self.tau_multiple, "noise_model": self.noise_model}
+                "tau_multiple": self.tau_multiple, "noise_model": self.noise_model,
+                "integrated": list(self.integrated), "moves": self.moves}
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -337,7 +355,8 @@ def sample_posterior(logs_or_fit: Sequence[Log] | FitResult, model: Model | str 
                      walkers: int = 32, steps: int = 20_000, tau_multiple: float = 50.0,
                      check_every: int = 500, thin: int | None = None, seed: int = 0,
                      backend: str | os.PathLike | None = None, resume: bool = False,
-                     progress: bool | None = None, draws: int = 200) -> Posterior:
+                     progress: bool | None = None, draws: int = 200,
+                     moves: str = DEFAULT_MOVES, integrate_offsets: bool = True) -> Posterior:
     """Sample the posterior of ``model`` given ``logs`` with emcee.
 
     Args:
@@ -361,6 +380,12 @@ def sample_posterior(logs_or_fit: Sequence[Log] | FitResult, model: Model | str 
         resume: continue the chain stored in ``backend``.
         progress: progress bar on stderr; ``None``: when stderr is a terminal.
         draws: number of posterior draws of the model force kept for the report.
+        moves: emcee proposal, a key of :data:`MOVES` (``"de"``: differential evolution,
+            the default; ``"stretch"``: emcee's default stretch move).
+        integrate_offsets: integrate the per-log force offsets out analytically instead of
+            sampling them (``gaussian`` and ``ar1`` noise, flat offset priors; otherwise they
+            are sampled). Their samples are then exact draws from their conditional
+            posterior given each sampled step.
 
     Returns:
         A :class:`Posterior`; ``diagnostics.converged`` is False (with the reason) when the
@@ -373,13 +398,19 @@ def sample_posterior(logs_or_fit: Sequence[Log] | FitResult, model: Model | str 
     problem, fit_result = _problem(logs_or_fit, model, fix, fit_options or {})
     noise = likelihood.noise_model(noise_model)
     prior_set = Priors(problem, priors)
-    if walkers < 2 * problem.size:
-        raise InputError(None, f"--walkers {walkers}",
-                         f"fewer than twice the {problem.size} sampled coordinates "
-                         f"({', '.join(problem.names)})",
-                         f"give --walkers {2 * problem.size + 2} or more")
+    if moves not in MOVES:
+        raise InputError(None, f"--moves {moves}", "unknown proposal",
+                         f"use one of: {', '.join(MOVES)}")
     layout = problem.cached("layout", lambda: Layout.from_problem(problem))
-    signature = _signature(problem, noise, prior_set, walkers)
+    integrated = _integrated(problem, noise, prior_set, integrate_offsets)
+    sampled = [n for i, n in enumerate(problem.names) if i not in set(integrated)]
+    if walkers < 2 * len(sampled):
+        raise InputError(None, f"--walkers {walkers}",
+                         f"fewer than twice the {len(sampled)} sampled coordinates "
+                         f"({', '.join(sampled)})",
+                         f"give --walkers {2 * len(sampled) + 2} or more")
+    signature = _signature(problem, noise, prior_set, walkers) | {
+        "moves": moves, "integrated": [problem.names[i] for i in integrated]}
     store = _ChainStore(backend) if backend is not None else None
     seeds = np.random.SeedSequence(seed).spawn(3)
     warnings: list[str] = []
@@ -399,18 +430,21 @@ def sample_posterior(logs_or_fit: Sequence[Log] | FitResult, model: Model | str 
                             f"of {', '.join(ident.parameters + ident.derived)} reflects the "
                             "prior and the model's assumptions, not a measurement")
         theta_start = np.asarray(fit_result.theta)
-    noise, turning = _prepared(problem, noise, theta_start, layout)
+    coordinates = _Coordinates.of(problem, theta_start, integrated, layout)
+    noise, turning = _prepared(problem, noise, theta_start, layout, linear=coordinates.linear)
     if turning.columns.shape[1] and getattr(noise, "marginal", None) is None:
         warnings.append(f"the {noise.name} noise model leaves the displacement errors at the "
                         "turning points out: intervals may be too narrow")
-    log_prob = LogPosterior(problem, noise, prior_set, batch=(walkers + 1) // 2)
+    log_prob = LogPosterior(problem, noise, prior_set, batch=(walkers + 1) // 2,
+                            coordinates=coordinates)
+    ndim = coordinates.sampled.size
     emcee_backend = store.backend if store else emcee.backends.Backend()
     if not resume:
-        emcee_backend.reset(walkers, problem.size)
+        emcee_backend.reset(walkers, ndim)
         if store:
             store.write_settings(signature, settings=noise, theta_start=theta_start)
-    sampler = emcee.EnsembleSampler(walkers, problem.size, log_prob, vectorize=True,
-                                    backend=emcee_backend)
+    sampler = emcee.EnsembleSampler(walkers, ndim, log_prob, vectorize=True,
+                                    backend=emcee_backend, moves=MOVES[moves]())
     if resume:
         state = sampler.get_last_sample()
     else:
@@ -419,7 +453,7 @@ def sample_posterior(logs_or_fit: Sequence[Log] | FitResult, model: Model | str 
         state = emcee.State(coords, log_prob=lp0, random_state=np.random.RandomState(
             np.random.MT19937(seeds[1])).get_state())
     try:
-        check = _run_chunks(sampler, state, names=problem.names, steps=steps,
+        check = _run_chunks(sampler, state, names=coordinates.names(problem), steps=steps,
                             tau_multiple=tau_multiple, check_every=check_every,
                             progress=sys.stderr.isatty() if progress is None else progress,
                             after_chunk=store.compact if store else None)
@@ -427,8 +461,9 @@ def sample_posterior(logs_or_fit: Sequence[Log] | FitResult, model: Model | str 
         if store:
             store.backend.flush()      # also when interrupted: no sampled step is lost
     return _collect(problem, sampler, check, noise=noise, layout=layout, priors=prior_set,
-                    fit=fit_result, thin=thin, draws=draws, tau_multiple=tau_multiple,
-                    rng=np.random.default_rng(seeds[2]), warnings=warnings)
+                    coordinates=coordinates, fit=fit_result, thin=thin, draws=draws,
+                    tau_multiple=tau_multiple, moves=moves,
+                    rng=np.random.default_rng(seeds[2]), warnings=warnings, store=store)
 
 
 def _check_options(**options) -> None:
@@ -476,17 +511,61 @@ def log_posterior(fit: FitResult, *, noise_model: str | NoiseModel = DEFAULT_NOI
     return LogPosterior(problem, noise, Priors(problem, priors), batch=batch)
 
 
-def _prepared(problem: Problem, noise: NoiseModel, theta: np.ndarray,
-              layout: Layout) -> tuple[NoiseModel, TurningPoints]:
-    """``noise`` with its settings and the turning-point errors at ``theta``."""
+def _prepared(problem: Problem, noise: NoiseModel, theta: np.ndarray, layout: Layout, *,
+              linear: LinearNuisances | None = None) -> tuple[NoiseModel, TurningPoints]:
+    """``noise`` with its settings, the turning-point errors at ``theta`` and the ``linear``
+    nuisances integrated out."""
     turning = TurningPoints.at(problem, jnp.asarray(theta), layout)
-    return noise.prepared(_residuals(problem, theta), layout, turning_points=turning), turning
+    return noise.prepared(_residuals(problem, theta), layout, turning_points=turning,
+                          linear=linear), turning
+
+
+def _integrated(problem: Problem, noise: NoiseModel, priors: Priors, wanted: bool) -> list[int]:
+    """Positions in ``theta`` of the entries to integrate out: the problem's linear entries
+    (force offsets) with flat priors, when the noise model can."""
+    if not (wanted and noise.integrates_linear):
+        return []
+    return [i for i in problem.linear_entries()
+            if priors.priors[problem.names[i]].dist == "flat"]
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class _Coordinates:
+    """What the walkers move in: ``theta`` less the entries integrated out analytically.
+
+    Attributes:
+        base: a full ``theta``; the integrated entries keep its values in the likelihood.
+        sampled: positions in ``theta`` of the sampled coordinates.
+        linear: the integrated entries' columns (``None`` when none is integrated).
+    """
+
+    base: np.ndarray
+    sampled: np.ndarray
+    linear: LinearNuisances | None
+
+    @classmethod
+    def of(cls, problem: Problem, theta: np.ndarray, integrated: Sequence[int],
+           layout: Layout) -> _Coordinates:
+        base = np.asarray(theta, dtype=float)
+        sampled = np.setdiff1d(np.arange(base.size), np.asarray(integrated, dtype=int))
+        linear = (LinearNuisances.at(problem, base, layout, integrated) if len(integrated)
+                  else None)
+        return cls(base, sampled, linear)
+
+    def names(self, problem: Problem) -> list[str]:
+        return [problem.names[i] for i in self.sampled]
+
+    def full(self, coords):
+        """The full ``theta`` of sampled coordinates (JAX; one row)."""
+        return jnp.asarray(self.base).at[self.sampled].set(coords)
 
 
 class LogPosterior:
-    """Rows of ``theta`` -> log-posteriors (emcee's ``log_prob_fn`` with ``vectorize=True``).
+    """Rows of sampled coordinates -> log-posteriors (emcee's ``log_prob_fn`` with
+    ``vectorize=True``): ``theta``, or with ``coordinates`` its sampled entries (the others
+    integrated out by the prepared ``noise``).
 
-    ``one(theta)`` is the JAX function of one ``theta``; calls run it ``vmap``-ed and compiled
+    ``one(coords)`` is the JAX function of one row; calls run it ``vmap``-ed and compiled
     for ``batch`` rows (half the ensemble: the stretch move's update), padding the last chunk,
     so it compiles once. Compilations are shared by every instance for the same problem,
     noise model, priors and batch.
@@ -496,19 +575,23 @@ class LogPosterior:
         noise: a prepared noise model (:meth:`~fitstiff.likelihood.NoiseModel.prepared`).
         priors: the priors.
         batch: rows per compiled call.
+        coordinates: the sampled coordinates (default: all of ``theta``).
     """
 
-    def __init__(self, problem: Problem, noise: NoiseModel, priors: Priors, *, batch: int):
+    def __init__(self, problem: Problem, noise: NoiseModel, priors: Priors, *, batch: int,
+                 coordinates: _Coordinates | None = None):
         layout = problem.cached("layout", lambda: Layout.from_problem(problem))
         self.problem, self.noise, self.priors, self.batch = problem, noise, priors, batch
+        self.coordinates = coordinates
 
-        def one(theta):
+        def one(coords):
+            theta = coords if coordinates is None else coordinates.full(coords)
             lp = (noise.log_likelihood(problem.residuals(theta), layout)
                   + priors.log_density(problem.physical(theta)) + problem.log_jacobian(theta))
             return jnp.where(jnp.isnan(lp), -jnp.inf, lp)
 
         self.one = one
-        self._fn = problem.cached(("log_posterior", noise, priors.key, batch),
+        self._fn = problem.cached(("log_posterior", noise, priors.key, batch, coordinates),
                                   lambda: jax.jit(jax.vmap(one)))
 
     def __call__(self, coords: np.ndarray) -> np.ndarray:
@@ -526,9 +609,12 @@ def _batched(fn: Callable, rows: np.ndarray, *, batch: int) -> np.ndarray:
 
 def _start(fit: FitResult, problem: Problem, log_prob: LogPosterior, walkers: int,
            rng: np.random.Generator, priors: Priors) -> tuple[np.ndarray, np.ndarray]:
-    """Walkers in a ball around the least-squares optimum (0.1 x its Laplace covariance)."""
+    """Walkers in a ball around the least-squares optimum (0.1 x its Laplace covariance),
+    in the sampled coordinates of ``log_prob``."""
     theta = np.asarray(fit.theta, dtype=float)
-    if not np.isfinite(log_prob(theta[None])[0]):
+    sampled = (np.arange(theta.size) if log_prob.coordinates is None
+               else log_prob.coordinates.sampled)
+    if not np.isfinite(log_prob(theta[None, sampled])[0]):
         density = np.asarray(priors.log_densities(problem.physical(jnp.asarray(theta))))
         outside = [n for n, d in zip(problem.names, density) if not np.isfinite(d)]
         if outside:
@@ -538,10 +624,11 @@ def _start(fit: FitResult, problem: Problem, log_prob: LogPosterior, walkers: in
     jac = np.asarray(jax.jacfwd(problem.physical)(jnp.asarray(theta)))
     cov = np.nan_to_num(np.asarray(fit.covariance, dtype=float))
     inv = np.linalg.pinv(jac)
-    cov_theta = inv @ cov @ inv.T
+    cov_theta = (inv @ cov @ inv.T)[np.ix_(sampled, sampled)]
     w, v = np.linalg.eigh(0.5 * (cov_theta + cov_theta.T))
     root = v * np.sqrt(np.clip(w, 0.0, None))
     sd_floor = _BALL_FLOOR / _BALL
+    theta = theta[sampled]
     coords = np.empty((walkers, theta.size))
     lp = np.full(walkers, -np.inf)
     for _ in range(100):
@@ -640,9 +727,10 @@ def _convergence(sampler: emcee.EnsembleSampler, names: Sequence[str], tau_multi
 
 # -- after sampling ---------------------------------------------------------------------------
 def _collect(problem: Problem, sampler: emcee.EnsembleSampler, check: _Check, *,
-             noise: NoiseModel, layout: Layout, priors: Priors, fit: FitResult | None,
-             thin: int | None, draws: int, tau_multiple: float, rng: np.random.Generator,
-             warnings: list[str]) -> Posterior:
+             noise: NoiseModel, layout: Layout, priors: Priors, coordinates: _Coordinates,
+             fit: FitResult | None, thin: int | None, draws: int, tau_multiple: float,
+             moves: str, rng: np.random.Generator, warnings: list[str],
+             store: _ChainStore | None) -> Posterior:
     n, walkers = check.steps, sampler.nwalkers
     tau_max = float(np.nanmax(check.tau)) if np.isfinite(check.tau).any() else float(n)
     discard = min(math.ceil(_BURN_IN_TAUS * tau_max), n // 2)
@@ -651,29 +739,62 @@ def _collect(problem: Problem, sampler: emcee.EnsembleSampler, check: _Check, *,
         raise InputError(None, f"--thin {thin}", f"keeps no step of the {kept} after the burn-in",
                          f"give --thin {kept} or less")
     thin = thin or max(1, int(tau_max // 2))
-    thetas = sampler.get_chain(discard=discard, thin=thin)
+    coords = sampler.get_chain(discard=discard, thin=thin)
     log_prob = sampler.get_log_prob(discard=discard, thin=thin)
-    flat = thetas.reshape(-1, thetas.shape[-1])
+    flat = _full_thetas(problem, noise, layout, coordinates,
+                        coords.reshape(-1, coords.shape[-1]), rng)
+    thetas = flat.reshape(coords.shape[:2] + flat.shape[-1:])
     physical = problem.cached("posterior_physical", lambda: jax.jit(jax.vmap(problem.physical)))
     samples = _batched(physical, flat, batch=_DERIVED_BATCH).reshape(thetas.shape)
     derived_fn = problem.cached("posterior_derived", lambda: jax.jit(jax.vmap(
         lambda th: jnp.stack([_derived(problem, th)[k] for k in DERIVED]))))
     derived_values = _batched(derived_fn, flat, batch=_DERIVED_BATCH)
     derived = {k: derived_values[:, i].reshape(thetas.shape[:2]) for i, k in enumerate(DERIVED)}
-    tau = dict(zip(problem.names, map(float, check.tau)))
+    tau = dict(zip(coordinates.names(problem), map(float, check.tau)))
+    integrated = tuple(n for n in problem.names if n not in tau)
     diagnostics = Diagnostics(
         acceptance_fraction=np.asarray(sampler.acceptance_fraction), autocorr_time=tau,
         effective_samples={k: walkers * kept / t for k, t in tau.items()},
         converged=check.converged, reason=check.reason, steps=n, walkers=walkers,
-        discard=discard, thin=thin, tau_multiple=tau_multiple, noise_model=noise.name)
+        discard=discard, thin=thin, tau_multiple=tau_multiple, noise_model=noise.name,
+        integrated=integrated, moves=moves)
     if not check.converged:
         warnings.append(f"the chain did not converge: {check.reason}")
+    if store is not None:
+        store.write_kept(thetas)
     best = flat[int(np.argmax(log_prob.ravel()))]
     predictive, scale = _predictive(problem, noise, layout, flat, best, draws=draws, rng=rng)
     return Posterior(problem=problem, names=tuple(problem.names), samples=samples,
                      log_prob=log_prob, derived=derived, noise=noise, noise_scale=scale,
                      priors=priors, diagnostics=diagnostics, predictive=predictive, fit=fit,
                      warnings=tuple(warnings))
+
+
+def _full_thetas(problem: Problem, noise: NoiseModel, layout: Layout,
+                 coordinates: _Coordinates, coords: np.ndarray,
+                 rng: np.random.Generator) -> np.ndarray:
+    """Full ``theta`` rows of sampled ``coords``: the integrated entries drawn from their
+    conditional posterior given each row (:meth:`~fitstiff.likelihood.AR1.linear_draws`)."""
+    full = np.repeat(coordinates.base[None], coords.shape[0], axis=0)
+    full[:, coordinates.sampled] = coords
+    linear = coordinates.linear
+    if linear is None:
+        return full
+    columns = noise.marginal.series.size
+    dof = noise.dof(layout)
+    normal = rng.standard_normal((coords.shape[0], columns))
+    chi2 = rng.chisquare(np.maximum(dof, 1), size=(coords.shape[0], dof.size))
+    d = full.shape[1]
+
+    def draw(row):
+        theta, z, c = row[:d], row[d:d + columns], row[d + columns:]
+        return noise.linear_draws(problem.residuals(theta), layout, z, c)
+
+    fn = problem.cached(("posterior_linear_draws", noise), lambda: jax.jit(jax.vmap(draw)))
+    corrections = _batched(fn, np.concatenate([full, normal, chi2], axis=1),
+                           batch=_DERIVED_BATCH)
+    full[:, linear.index] += corrections
+    return full
 
 
 def _residuals(problem: Problem, theta: np.ndarray) -> np.ndarray:
@@ -760,6 +881,16 @@ class _ChainStore:
             group.attrs["signature"] = json.dumps(signature, sort_keys=True)
             group.attrs["noise"] = json.dumps(settings.to_dict())
             group.attrs["theta_start"] = np.asarray(theta_start, dtype=float)
+
+    def write_kept(self, thetas: np.ndarray) -> None:
+        """Store the full ``theta`` of every kept draw ``(draws, walkers, size)``: the chain
+        holds the sampled coordinates only, these add the integrated entries' conditional
+        draws (read by the report)."""
+        with h5py.File(self.path, "a") as f:
+            group = f.require_group(self._GROUP)
+            if KEPT in group:
+                del group[KEPT]
+            group.create_dataset(KEPT, data=np.asarray(thetas, dtype=float))
 
     def compact(self) -> None:
         """Rewrite the file without the space the random-state attribute updates leave

@@ -289,6 +289,14 @@ class Problem:
             off += self.n_logs
         return out
 
+    def linear_entries(self) -> list[int]:
+        """Positions in ``theta`` of the entries the residuals are exactly linear in: the
+        per-log force offsets (added to the model force; the posterior integrates them out)."""
+        if "offset" not in self.nuisance_names:
+            return []
+        start = self.par.size + self.nuisance_names.index("offset") * self.n_logs
+        return list(range(start, start + self.n_logs))
+
     def log_jacobian(self, theta):
         """log |d(physical)/d(theta)| of the model part (nuisances: offsets and closing
         pressures linear, constant Jacobian left out; the initial friction state's tanh

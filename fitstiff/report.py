@@ -47,6 +47,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
+import h5py
 import numpy as np
 from matplotlib.figure import Figure
 
@@ -59,7 +60,7 @@ from fitstiff.log import Log
 from fitstiff.model import Model, build_model
 from fitstiff.output import OutputDir, sha256_file
 from fitstiff.params import find_param
-from fitstiff.posterior import CHAIN, INFERENCE_DATA
+from fitstiff.posterior import CHAIN, INFERENCE_DATA, KEPT
 from fitstiff.problem import NUISANCES, PROBLEM_OPTIONS, Problem
 from fitstiff.stiffness import MM
 
@@ -268,15 +269,20 @@ def _fit_curves(run: RunDirectory) -> _Curves:
 class _Chain:
     """The posterior chain in physical display units, and the draws kept after burn-in."""
 
-    theta: np.ndarray        # (steps, walkers, size) as sampled (unconstrained)
+    theta: np.ndarray        # (steps, walkers, size) full theta (integrated entries at their
+                             # stored values)
     log_prob: np.ndarray     # (steps, walkers)
     display: np.ndarray      # (steps, walkers, size): model parameters in display units,
                              # nuisances in theirs (N, fraction)
     discard: int
     thin: int
+    stored_kept: np.ndarray | None = None   # (draws, walkers, size) with the integrated
+                                            # entries' conditional draws
 
     @property
     def kept(self) -> np.ndarray:
+        if self.stored_kept is not None:
+            return self.stored_kept.reshape(-1, self.theta.shape[-1])
         return self.theta[self.discard::self.thin].reshape(-1, self.theta.shape[-1])
 
     @property
@@ -292,26 +298,40 @@ def _read_chain(run: RunDirectory) -> _Chain:
     if not path.is_file():
         raise InputError(str(path), "chain file", "is missing",
                          "run fitstiff posterior again into this directory")
+    diagnostics = result["diagnostics"]
+    integrated = diagnostics.get("integrated", [])
     try:
         backend = emcee.backends.HDFBackend(str(path), name="mcmc", read_only=True)
         theta, log_prob = backend.get_chain(), backend.get_log_prob()
+        with h5py.File(path, "r") as f:
+            group = f.get("fitstiff")
+            base = np.asarray(group.attrs["theta_start"]) if group is not None else None
+            kept = np.asarray(group[KEPT]) if group is not None and KEPT in group else None
     except (OSError, KeyError, AttributeError) as exc:
         raise InputError(str(path), "chain file", f"cannot be read ({exc})",
                          "run fitstiff posterior again into this directory") from None
-    sampled = [n for n, p in result["parameters"].items() if not p.get("fixed")]
-    sampled += list(result["nuisances"])
-    if sampled != problem.names or theta.shape[-1] != problem.size:
+    names = [n for n, p in result["parameters"].items() if not p.get("fixed")]
+    names += list(result["nuisances"])
+    sampled = [n for n in names if n not in integrated]
+    if (names != problem.names or theta.shape[-1] != len(sampled)
+            or (integrated and (base is None or kept is None
+                                or kept.shape[-1] != problem.size))):
         raise InputError(str(path), "chain",
                          f"holds {theta.shape[-1]} coordinates ({', '.join(sampled)}), the "
-                         f"rebuilt problem {problem.size} ({', '.join(problem.names)})",
+                         f"rebuilt problem {problem.size} ({', '.join(problem.names)}, of which "
+                         f"{len(integrated)} integrated out)",
                          "run fitstiff posterior again into this directory")
+    if integrated:
+        full = np.broadcast_to(base, theta.shape[:2] + base.shape).copy()
+        full[..., [problem.names.index(n) for n in sampled]] = theta
+        theta = full
     physical = jax.jit(jax.vmap(problem.physical))
     flat = np.asarray(physical(jnp.asarray(theta.reshape(-1, problem.size))))
     scales = np.concatenate([problem.par.scales(), np.ones(problem.size - problem.par.size)])
-    diagnostics = result["diagnostics"]
     return _Chain(theta=theta, log_prob=log_prob,
                   display=(flat / scales).reshape(theta.shape),
-                  discard=int(diagnostics["discard"]), thin=int(diagnostics["thin"]))
+                  discard=int(diagnostics["discard"]), thin=int(diagnostics["thin"]),
+                  stored_kept=kept if integrated else None)
 
 
 def _posterior_curves(run: RunDirectory, chain: _Chain, *, draws: int) -> _Curves:
@@ -592,11 +612,15 @@ def _posterior_verdict(result: Mapping[str, Any], curves_rms: float) -> _Verdict
         f"burn-in {d['discard']} steps discarded, thinned by {d['thin']}: "
         f"{result['samples']} samples kept.",
         f"Mean acceptance fraction {d['acceptance_fraction']:.2f} (lowest walker "
-        f"{d['acceptance_fraction_min']:.2f}; 0.2-0.5 is healthy for emcee's stretch move).",
+        f"{d['acceptance_fraction_min']:.2f}; 0.2-0.5 is healthy; proposal "
+        f"{d.get('moves', 'stretch')}).",
         f"Integrated autocorrelation time: largest {tau[worst]:.3g} steps ({worst}); the chain "
         f"is {d['steps'] / tau[worst]:.3g} of them long ({d['tau_multiple']:g} required).",
         f"Effective samples: fewest {ess[fewest]:.0f} ({fewest}).",
     ]
+    if d.get("integrated"):
+        details.append(f"Integrated out analytically (exact conditional draws, not sampled): "
+                       f"{', '.join(d['integrated'])}.")
     cautions = [w for w in result["warnings"] if d["reason"] not in w]   # said above
     fit = result.get("fit")
     if fit and curves_rms > (1 + _POSTERIOR_RMS_EXCESS) * fit["rms_N"]:

@@ -18,7 +18,8 @@ from conftest import REPO, polyline
 
 from benchmarks import calibration
 from fitstiff.cli import main
-from fitstiff.likelihood import AR1, Gaussian, Layout, StudentT, TurningPoints
+from fitstiff.likelihood import (AR1, Gaussian, Layout, LinearNuisances, StudentT,
+                                 TurningPoints)
 from fitstiff.log import Log
 from fitstiff.posterior import sample_posterior
 from fitstiff.priors import Priors
@@ -75,6 +76,36 @@ def test_turning_point_errors_are_integrated_out_exactly():
     assert float(known.log_likelihood(r, layout)) == pytest.approx(-0.5 * q, rel=1e-12)
 
 
+def test_offsets_are_integrated_out_exactly_under_flat_priors():
+    """A column g with a flat prior (a force offset) next to turning-point columns U: the
+    marginal over the offset and the scale is -((n - 1)/2) log Q, Q = r'S^-1 r -
+    (g'S^-1 r)^2 / (g'S^-1 g) with S = C + U U'/s^2 (the generalised least-squares residual);
+    Student-t noise refuses (no closed form)."""
+    rng = np.random.default_rng(3)
+    n, phi = 40, 0.6
+    layout = _layout(np.ones(n, bool))
+    u = 0.3 * rng.standard_normal((n, 2))
+    g = np.ones((n, 1)) * 0.5                        # d r / d offset (the force weight)
+    turning = TurningPoints(u, np.zeros(2, dtype=int))
+    linear = LinearNuisances(g, np.zeros(1, dtype=int), np.array([7]))
+    r_hat, r = rng.standard_normal(n), rng.standard_normal(n) + 3.0
+    model = AR1(phi=(phi,)).prepared(r_hat, layout, turning_points=turning, linear=linear)
+    innovations = np.concatenate([[np.sqrt(1 - phi**2) * r_hat[0]], r_hat[1:] - phi * r_hat[:-1]])
+    s2 = innovations @ innovations / n
+    corr = phi ** np.abs(np.subtract.outer(np.arange(n), np.arange(n))) / (1 - phi**2)
+    inv = np.linalg.inv(corr + u @ u.T / s2)
+    q = r @ inv @ r - (g[:, 0] @ inv @ r) ** 2 / (g[:, 0] @ inv @ g[:, 0])
+    assert float(model.log_likelihood(r, layout)) == pytest.approx(-0.5 * (n - 1) * np.log(q),
+                                                                   rel=1e-12)
+    assert model.dof(layout).tolist() == [n - 1]
+    # the conditional draw with zero deviates (and chi2 = q) is the GLS offset correction
+    best = -(g[:, 0] @ inv @ r) / (g[:, 0] @ inv @ g[:, 0])
+    draw = model.linear_draws(r, layout, np.zeros(3), np.array([q]))
+    assert float(draw[0]) == pytest.approx(best, rel=1e-9)
+    with pytest.raises(ValueError, match="cannot integrate"):
+        StudentT(nu=4).prepared(r_hat, layout, linear=linear)
+
+
 def test_student_t_scale_is_estimated_robustly():
     rng = np.random.default_rng(1)
     r = 2.5 * rng.standard_t(4, size=20000)
@@ -90,7 +121,8 @@ def _linear_log(force=None):
                time=t)
 
 
-def test_linear_model_posterior_matches_the_analytic_one():
+@pytest.mark.parametrize("integrate", [True, False], ids=["offset-integrated", "offset-sampled"])
+def test_linear_model_posterior_matches_the_analytic_one(integrate):
     """force = c v + drift t + offset + white noise; flat priors on (c, drift, offset) and the
     Gaussian noise scale integrated out (Jeffreys): the posterior is a multivariate t with
     n - 3 degrees of freedom about the OLS estimate, scale s^2 (X'X)^-1. c goes through the
@@ -115,9 +147,11 @@ def test_linear_model_posterior_matches_the_analytic_one():
     post = sample_posterior([_linear_log(y)], "viscous+force_drift",
                             fit_options={"denoise": False}, noise_model=Gaussian(),
                             priors={"c": {"dist": "flat"}}, walkers=32, steps=3000,
-                            check_every=1000, seed=2, progress=False, draws=10)
+                            check_every=1000, seed=2, progress=False, draws=10,
+                            integrate_offsets=integrate)
     samples = post.samples.reshape(-1, 3)
     assert post.names == ("c", "drift", "offset[lin]")
+    assert post.diagnostics.integrated == (("offset[lin]",) if integrate else ())
     np.testing.assert_array_less(np.abs(samples.mean(0) - beta), 0.05 * sd)
     np.testing.assert_allclose(samples.std(0), sd, rtol=0.05)
     corr = np.corrcoef(samples.T)[0, 1]
@@ -188,8 +222,10 @@ def test_cli_posterior_contains_truth_and_writes_every_file(tmp_path, capsys):
     assert {"acceptance_fraction", "autocorr_time", "effective_samples", "converged", "reason",
             "steps", "walkers", "noise_model"} <= set(diag)
     assert diag["noise_model"] == "ar1" and diag["walkers"] == 12
-    assert set(diag["autocorr_time"]) == {"n", "sigma0", "Fc", "offset[p6bar_x350mm]",
-                                          "friction_state0[p6bar_x350mm]"}
+    # the force offset is integrated out analytically: no chain, no autocorrelation time
+    assert set(diag["autocorr_time"]) == {"n", "sigma0", "Fc", "friction_state0[p6bar_x350mm]"}
+    assert diag["integrated"] == ["offset[p6bar_x350mm]"] and diag["moves"] == "de"
+    assert post["nuisances"]["offset[p6bar_x350mm]"]["std"] > 0
     assert isinstance(diag["converged"], bool) and diag["reason"]
     assert post["files"] == [str(FIG4)]
     idata = az.from_netcdf(out / "posterior.nc")
@@ -207,11 +243,13 @@ def test_cli_posterior_contains_truth_and_writes_every_file(tmp_path, capsys):
                                         "posterior.json"}
     assert not list(out.glob(".*partial*"))
     with h5py.File(out / "chain.h5") as f:
-        assert f["mcmc"]["chain"].shape == (diag["steps"], 12, 5)
+        assert f["mcmc"]["chain"].shape == (diag["steps"], 12, 4)
 
 
 @pytest.mark.parametrize("argv, fragment", [
-    (["--walkers", "4"], "--walkers 4: fewer than twice the 5 sampled coordinates"),
+    (["--walkers", "4"], "--walkers 4: fewer than twice the 4 sampled coordinates"),
+    (["--walkers", "8", "--sample-offsets"],
+     "--walkers 8: fewer than twice the 5 sampled coordinates"),
     (["--resume"], "holds no chain.h5 to continue; run without --resume first"),
     (["--priors", "missing.json"], "missing.json: --priors: cannot be read"),
     (["--steps", "0"], "--steps 0: must be at least 1"),

@@ -31,8 +31,10 @@ from fitstiff.likelihood import NOISE_MODELS
 from fitstiff.output import OutputDir, to_jsonable
 from fitstiff.posterior import (
     CHAIN,
+    DEFAULT_MOVES,
     DEFAULT_NOISE_MODEL,
     INFERENCE_DATA,
+    MOVES,
     PREDICTIVE,
     sample_posterior,
 )
@@ -76,6 +78,12 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     group.add_argument("--draws", type=int, default=200, metavar="N",
                        help="posterior draws of the model force kept for the report "
                             "(default 200)")
+    group.add_argument("--moves", choices=list(MOVES), default=DEFAULT_MOVES,
+                       help="emcee proposal: de (differential evolution, default), de+snooker, "
+                            "stretch (emcee's default)")
+    group.add_argument("--sample-offsets", action="store_true",
+                       help="sample the per-log force offsets instead of integrating them out "
+                            "analytically (automatic for student_t noise or offset priors)")
     group.add_argument("--resume", action="store_true",
                        help="continue the chain in --out (interrupted, or to more --steps)")
     parser.add_argument("--json", action="store_true", help="print posterior.json to stdout")
@@ -97,7 +105,9 @@ def run(args) -> int:
                             "reading": reading_options(args),
                             "noise_model": args.noise_model, "walkers": args.walkers,
                             "steps": args.steps, "tau_multiple": args.tau_multiple,
-                            "priors": args.priors, "resume": args.resume}) as out:
+                            "priors": args.priors, "resume": args.resume,
+                            "moves": args.moves,
+                            "sample_offsets": args.sample_offsets}) as out:
         logs = logs_from_args(args)
         partial = out.partial_path(CHAIN)
         if args.resume and not partial.exists():
@@ -114,7 +124,8 @@ def run(args) -> int:
                 noise_model=args.noise_model, priors=args.priors, walkers=args.walkers,
                 steps=args.steps, tau_multiple=args.tau_multiple, check_every=args.check_every,
                 thin=args.thin, seed=args.seed, backend=partial, resume=args.resume,
-                draws=args.draws)
+                draws=args.draws, moves=args.moves,
+                integrate_offsets=not args.sample_offsets)
         except KeyboardInterrupt:
             if partial.exists():
                 sys.stderr.write(f"fitstiff posterior: the chain so far is kept in {partial}; "
