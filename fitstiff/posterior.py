@@ -131,6 +131,7 @@ _TAU_STABLE = 0.05
 _MIN_ACCEPTANCE = 0.05
 _STUCK_FRACTION = 0.2
 _DERIVED_BATCH = 256
+_RESIDUAL_BATCH = 32        # rows per call of functions that run the model over whole logs
 _PREDICTIVE_BATCH = 25
 _PREDICTIVE_POINTS = 2000   # at most this many samples per log in the predictive file
 _QUANTILES = (("q05", 5.0), ("q50", 50.0), ("q95", 95.0))
@@ -792,7 +793,7 @@ def _full_thetas(problem: Problem, noise: NoiseModel, layout: Layout,
 
     fn = problem.cached(("posterior_linear_draws", noise), lambda: jax.jit(jax.vmap(draw)))
     corrections = _batched(fn, np.concatenate([full, normal, chi2], axis=1),
-                           batch=_DERIVED_BATCH)
+                           batch=_RESIDUAL_BATCH)
     full[:, linear.index] += corrections
     return full
 

@@ -47,6 +47,9 @@ NUISANCES = ("offset", "friction_state0", "closing_pressure")
 PROBLEM_OPTIONS = ("denoise", "sample_range", "weights", "skip", "free")
 #: nuisances held unless asked for with ``free``
 OPTIONAL_NUISANCES = ("closing_pressure",)
+#: a log shorter than this times the longest of its stack is run in a stack of its own
+#: (``benchmarks/posterior_default.py``: four logs of 3 200-12 800 samples)
+PAD_RATIO = 0.7
 _DEFAULT_CLOSING_PA = 5e5      # gauge start value when neither rig nor log says more
 _PRESSURE_NOISE_FLOOR = 10.0   # Pa, below any real sensor
 _FORCE_NOISE_FLOOR = 1e-3      # N
@@ -204,11 +207,16 @@ class Problem:
         return w
 
     def _build_groups(self) -> list[_Group]:
+        """Logs of one structure (chamber modes, observed channels, time) are stacked and run
+        as one ``vmap``-ed scan, padded to the longest; logs much shorter than the longest
+        start their own stack (:data:`PAD_RATIO`), so padding wastes little work."""
         keys: dict[tuple, list[int]] = {}
         for i, d in enumerate(self.drives):
             keys.setdefault((d.modes, d.observed, d.has_time), []).append(i)
+        stacks = [bucket for index in keys.values()
+                  for bucket in _length_buckets(index, [len(d) for d in self.drives])]
         groups = []
-        for index in keys.values():
+        for index in stacks:
             n_max = max(len(self.drives[i]) for i in index)
             drives = [_pad_drive(self.drives[i], n_max) for i in index]
             stacked = jax.tree.map(lambda *xs: jnp.stack(xs), *drives)
@@ -456,6 +464,19 @@ class Problem:
         if key not in self._compiled:
             self._compiled[key] = factory()
         return self._compiled[key]
+
+
+def _length_buckets(index: Sequence[int], lengths: Sequence[int]) -> list[list[int]]:
+    """``index`` cut into stacks of similar length: longest first, a log shorter than
+    :data:`PAD_RATIO` times its stack's longest starts the next stack (in log order within)."""
+    order = sorted(index, key=lambda i: -lengths[i])
+    stacks: list[list[int]] = []
+    for i in order:
+        if stacks and lengths[i] >= PAD_RATIO * lengths[stacks[-1][0]]:
+            stacks[-1].append(i)
+        else:
+            stacks.append([i])
+    return [sorted(stack) for stack in stacks]
 
 
 def _pad(a, n: int, *, fill: float | None = None) -> np.ndarray:

@@ -191,3 +191,36 @@ def test_logs_denoised_and_left_as_measured_fit_together():
     result = fit(logs, "chamber+dahl")
     assert result.converged
     assert result.value("sigma0") == pytest.approx(40e3, rel=0.05)
+
+
+def test_logs_of_very_different_length_run_in_their_own_stacks():
+    """Logs are stacked (one vmap-ed scan) and padded to the longest of their stack; a log
+    shorter than PAD_RATIO x the longest gets its own stack. The residuals per log are the same
+    whatever the stacking (only the order of the series in the vector follows the stacks)."""
+    from fitstiff import problem as problem_module
+    from fitstiff.problem import Problem
+
+    rig = Rig(bore=0.032, rod=0.0, stroke=0.7, start_position=0.35, supply_pressure=5e5)
+    logs = [simulate("chamber+dahl", TriangleCycles(amplitudes_mm=(0.2, 1.0), rate_mm_s=rate),
+                     rig=rig, seed=k, name=f"l{k}", rate_hz=200).log
+            for k, rate in enumerate((4.0, 1.0, 1.1))]
+    lengths = [len(log) for log in logs]
+    assert lengths[0] < 0.5 * lengths[1] and lengths[2] > 0.7 * lengths[1]
+    assert problem_module._length_buckets([0, 1, 2], lengths) == [[1, 2], [0]]
+    split = Problem(logs, "chamber+dahl")
+    assert [g.index for g in split._groups] == [(1, 2), (0,)]
+    theta = split.pack(split.model, {"offset": [0.1, 0.2, 0.3]})
+    per_log = split.per_log(theta)
+    original = problem_module.PAD_RATIO
+    try:
+        problem_module.PAD_RATIO = 0.0
+        one = Problem(logs, "chamber+dahl")
+    finally:
+        problem_module.PAD_RATIO = original
+    assert [g.index for g in one._groups] == [(0, 1, 2)]
+    for a, b in zip(per_log, one.per_log(one.pack(one.model, {"offset": [0.1, 0.2, 0.3]}))):
+        np.testing.assert_allclose(a["force"], b["force"], rtol=1e-12, atol=1e-12)
+    r_split, r_one = np.asarray(split.residuals(theta)), np.asarray(one.residuals(theta))
+    assert r_split.size < r_one.size                 # less padding
+    np.testing.assert_allclose(np.sort(r_split[r_split != 0]), np.sort(r_one[r_one != 0]),
+                               rtol=1e-12)
