@@ -59,7 +59,7 @@ def reference_log_posterior(theta: np.ndarray, problem: Problem, noise) -> float
     squares = [float(w @ w) for w in whitened]
     if noise.marginal is not None:                        # e'e - v' M v per force series
         m = noise.marginal
-        v = m.whitened.T @ np.concatenate(whitened)
+        v = np.asarray(m.project(np.concatenate(whitened)))
         for column_series, term in zip(m.series, v * (m.inverse @ v)):
             squares[column_series] -= term
     lp = -0.5 * k * sum(math.log(q) for q in squares)

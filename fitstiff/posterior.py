@@ -39,8 +39,13 @@ with 0.1 times its Laplace covariance (mapped to ``theta``).
 **Convergence.** The chain runs in chunks of ``check_every`` steps. After each chunk the
 integrated autocorrelation time of every coordinate is estimated (emcee's estimator,
 ``tol=0`` so it never raises) and the run stops when all of: the chain is longer than
-``tau_multiple`` times the largest time; every time changed by less than 5 % since the
-previous check; the mean acceptance fraction is at least 0.05 and no walker accepts less
+``tau_multiple`` times the largest time; every time changed since the previous check by
+less than 5 % or three standard deviations of the estimate's change on a stationary chain
+(:func:`_tau_change_sd`). A strict 5 % is below the estimator's noise at 50-90 times: on a
+stationary chain of the demo logs (tau about 22, 32 walkers, seven coordinates) the change
+between checks 500 steps apart (at 1 500 and 2 000 steps, 31 windows) had an rms of 6.7 %
+(5.6 % predicted); 5 % failed 90 % of these checks, two standard deviations 35 %, three
+none; the mean acceptance fraction is at least 0.05 and no walker accepts less
 than a fifth of the median walker. Otherwise it stops at ``steps`` with ``converged`` False and
 the reason; it is never dropped. ``discard`` = 5 times the largest time (at most half the
 chain), ``thin`` = half of it unless given; effective samples = walkers x kept steps / tau.
@@ -127,7 +132,8 @@ DEFAULT_MOVES = "de"
 _BALL = 0.1                 # start ball: this times the Laplace standard deviations
 _BALL_FLOOR = 1e-4          # ... and at least this in theta units (undetermined directions)
 _BURN_IN_TAUS = 5.0
-_TAU_STABLE = 0.05
+_TAU_STABLE = 0.05          # the autocorrelation times may change by this between checks,
+_TAU_NOISE_SDS = 3.0        # ... or by this many standard deviations of the estimate's change
 _MIN_ACCEPTANCE = 0.05
 _STUCK_FRACTION = 0.2
 _DERIVED_BATCH = 256
@@ -585,15 +591,27 @@ class LogPosterior:
         self.problem, self.noise, self.priors, self.batch = problem, noise, priors, batch
         self.coordinates = coordinates
 
-        def one(coords):
-            theta = coords if coordinates is None else coordinates.full(coords)
-            lp = (noise.log_likelihood(problem.residuals(theta), layout)
+        def full(coords):
+            return coords if coordinates is None else coordinates.full(coords)
+
+        def given(residuals, coords):
+            theta = full(coords)
+            lp = (noise.log_likelihood(residuals, layout)
                   + priors.log_density(problem.physical(theta)) + problem.log_jacobian(theta))
             return jnp.where(jnp.isnan(lp), -jnp.inf, lp)
 
+        def one(coords):
+            return given(problem.residuals(full(coords)), coords)
+
         self.one = one
-        self._fn = problem.cached(("log_posterior", noise, priors.key, batch, coordinates),
-                                  lambda: jax.jit(jax.vmap(one)))
+        # two compiled calls, not one: XLA's CPU backend fused the likelihood into the scan's
+        # output at twice the cost of the two apart (four logs of 35 000 samples, 16 rows:
+        # 24 ms fused, 5.9 + 5.1 ms apart)
+        residuals = problem.cached(("posterior_residual_rows", batch, coordinates),
+                                   lambda: jax.jit(jax.vmap(lambda c: problem.residuals(full(c)))))
+        rest = problem.cached(("log_posterior_given", noise, priors.key, batch, coordinates),
+                              lambda: jax.jit(jax.vmap(given)))
+        self._fn = lambda rows: rest(residuals(rows), rows)
 
     def __call__(self, coords: np.ndarray) -> np.ndarray:
         return _batched(self._fn, np.asarray(coords, dtype=float), batch=self.batch)
@@ -706,12 +724,15 @@ def _convergence(sampler: emcee.EnsembleSampler, names: Sequence[str], tau_multi
         return _Check(False, "one check only: the autocorrelation times are not yet known to "
                              "be stable", tau, n)
     before = _integrated_time(chain[:previous])
+    allowed = np.maximum(_TAU_STABLE, _TAU_NOISE_SDS * _tau_change_sd(tau, chain.shape[1],
+                                                                       previous, n))
     with np.errstate(invalid="ignore", divide="ignore"):
         change = np.abs(tau - before) / tau
-    if np.nanmax(change) > _TAU_STABLE:
-        k = int(np.nanargmax(change))
+    if np.nanmax(change - allowed) > 0:
+        k = int(np.nanargmax(change - allowed))
         return _Check(False, f"the autocorrelation time of {names[k]} changed by "
-                             f"{100 * change[k]:.0f} % since step {previous}", tau, n)
+                             f"{100 * change[k]:.0f} % since step {previous} (more than "
+                             f"{100 * allowed[k]:.0f} %)", tau, n)
     acceptance = sampler.acceptance_fraction
     if np.mean(acceptance) < _MIN_ACCEPTANCE:
         return _Check(False, f"mean acceptance fraction {np.mean(acceptance):.3f} < "
@@ -723,7 +744,17 @@ def _convergence(sampler: emcee.EnsembleSampler, names: Sequence[str], tau_multi
                              "posterior has separate modes)", tau, n)
     return _Check(True, f"{n} steps >= {tau_multiple:g} x tau = {tau_multiple * tau_max:.0f} "
                         f"(tau {tau_max:.1f} for {names[worst]}), autocorrelation times stable "
-                        f"within {100 * _TAU_STABLE:g} %", tau, n)
+                        f"within {100 * float(np.max(allowed)):.0f} %", tau, n)
+
+
+def _tau_change_sd(tau: np.ndarray, walkers: int, previous: int, n: int) -> np.ndarray:
+    """Relative standard deviation of the change of an autocorrelation-time estimate between
+    ``previous`` and ``n`` steps of a stationary chain: Sokal's variance of the estimate,
+    ``2 (2 M + 1) tau**2 / N`` for a window ``M = 5 tau`` (emcee's), averaged over the
+    walkers; the later estimate contains the earlier data, so the variance of the difference
+    is the difference of the variances."""
+    window = 5.0 * tau
+    return np.sqrt(2.0 * (2.0 * window + 1.0) / walkers * (1.0 / previous - 1.0 / n))
 
 
 # -- after sampling ---------------------------------------------------------------------------
