@@ -107,3 +107,25 @@ def test_cli_bad_input_is_one_line_exit_2(tmp_path, capsys):
     assert err.count("\n") == 1
     assert "segmentation option 'threshold': found -0.001; give a positive number" in err
     assert main(["inspect", str(tmp_path / "missing.csv")]) == 2
+
+
+def test_inspect_imports_neither_jax_nor_matplotlib(tmp_path):
+    """`fitstiff inspect` builds only its own parser: no JAX, matplotlib or samplers are
+    imported (a cold `inspect` took 7 s when every subcommand's module was loaded), and a
+    JAX command run afterwards in a fresh process still gets the persistent compilation
+    cache through JAX's environment variables."""
+    import subprocess
+    import sys
+
+    from conftest import REPO
+
+    log = REPO / "data" / "synthetic" / "fig4" / "p6bar_x350mm.csv"
+    code = ("import sys, os; from fitstiff.cli import main; "
+            f"rc = main(['inspect', {str(log)!r}]); "
+            "print(rc, sorted(m for m in ('jax', 'matplotlib', 'emcee', 'h5py') "
+            "if m in sys.modules), os.environ.get('JAX_COMPILATION_CACHE_DIR'))")
+    env = {k: v for k, v in __import__("os").environ.items() if not k.startswith("JAX_")}
+    env["FITSTIFF_CACHE_DIR"] = str(tmp_path / "cache")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          env=env, cwd=tmp_path, check=True)
+    assert done.stdout.strip().splitlines()[-1] == f"0 [] {tmp_path / 'cache'}"

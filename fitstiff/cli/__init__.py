@@ -32,11 +32,13 @@ class _Parser(argparse.ArgumentParser):
         raise SystemExit(2)
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(only: str | None = None) -> argparse.ArgumentParser:
+    """The parser of every subcommand, or of ``only`` (then only its module is imported:
+    ``fitstiff inspect`` does not import JAX, matplotlib or the samplers)."""
     parser = _Parser(prog="fitstiff", description=__doc__.splitlines()[0])
     parser.add_argument("--version", action="version", version=f"fitstiff {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
-    for name in SUBCOMMANDS:
+    for name in (only,) if only in SUBCOMMANDS else SUBCOMMANDS:
         try:
             module = importlib.import_module(f"fitstiff.cli.{name}")
         except ModuleNotFoundError as exc:
@@ -56,6 +58,10 @@ def _enable_compilation_cache() -> None:
     path = os.environ.get("FITSTIFF_CACHE_DIR",
                           os.path.join(os.path.expanduser("~"), ".cache", "fitstiff", "jax"))
     if not path:
+        return
+    if "jax" not in sys.modules:    # read by JAX when (if) the command imports it
+        os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", path)
+        os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.2")
         return
     from fitstiff._jax import jax
 
@@ -86,7 +92,8 @@ def _numeric_message(args: argparse.Namespace, exc: RuntimeWarning) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     _enable_compilation_cache()
-    parser = build_parser()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    parser = build_parser(argv[0] if argv else None)
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
         parser.print_help()
