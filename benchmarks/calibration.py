@@ -74,7 +74,8 @@ def dataset(seed: int):
 
 
 def score(seed: int, *, noise_models=("ar1", "gaussian"), walkers: int = 16, steps: int = 3000,
-          tau_multiple: float = 30.0, priors: str = "draw") -> dict[str, object]:
+          tau_multiple: float = 30.0, priors: str = "draw", moves: str = "de",
+          integrate_offsets: bool = True) -> dict[str, object]:
     """One dataset: fit, sample with each noise model, check the 90 % intervals."""
     logs, truth = dataset(seed)
     t0 = time.perf_counter()
@@ -91,7 +92,8 @@ def score(seed: int, *, noise_models=("ar1", "gaussian"), walkers: int = 16, ste
         t0 = time.perf_counter()
         post = sample_posterior(result, noise_model=name, walkers=walkers, steps=steps,
                                 tau_multiple=tau_multiple, seed=seed, progress=False, draws=1,
-                                priors=DRAW_PRIORS if priors == "draw" else None)
+                                priors=DRAW_PRIORS if priors == "draw" else None,
+                                moves=moves, integrate_offsets=integrate_offsets)
         entry: dict[str, object] = {"converged": post.diagnostics.converged,
                                     "reason": post.diagnostics.reason,
                                     "steps": post.diagnostics.steps,
@@ -125,13 +127,17 @@ def main() -> None:
     parser.add_argument("--tau-multiple", type=float, default=30.0)
     parser.add_argument("--priors", choices=("draw", "default"), default="draw",
                         help="uniform priors over the draw ranges (default) or fitstiff's defaults")
+    parser.add_argument("--moves", default="de", help="emcee proposal (fitstiff's MOVES)")
+    parser.add_argument("--sample-offsets", action="store_true",
+                        help="sample the force offsets instead of integrating them out")
     parser.add_argument("--json", metavar="FILE")
     args = parser.parse_args()
     models = tuple(m for m in args.noise_models.split(",") if m)
     rows = []
     for seed in range(args.first_seed, args.first_seed + args.datasets):
         row = score(seed, noise_models=models, walkers=args.walkers, steps=args.steps,
-                    tau_multiple=args.tau_multiple, priors=args.priors)
+                    tau_multiple=args.tau_multiple, priors=args.priors, moves=args.moves,
+                    integrate_offsets=not args.sample_offsets)
         rows.append(row)
         parts = [f"seed {seed:3d} ar1 {row['truth']['ar1']:.2f} lag1 {row['residual_lag1']:+.2f}"]
         for m in models:
