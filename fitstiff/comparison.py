@@ -21,7 +21,7 @@ from fitstiff.model import Model
 from fitstiff.params import named_params
 from fitstiff.problem import PROBLEM_OPTIONS, Problem
 
-__all__ = ["Comparison", "compare", "held_out_rms", "predict_held_out"]
+__all__ = ["Comparison", "check_specs", "compare", "held_out_rms", "predict_held_out"]
 
 
 def predict_held_out(log: Log, model: Model, **problem_kw) -> tuple[float, FitResult]:
@@ -62,26 +62,46 @@ class Comparison:
                  f"{'held-out N':>12}  converged"]
         for r in self.rows:
             held = r["heldout_rms_N"]
-            lines.append(f"{r['model']:<36}{r['n_params']:>7}{r['rms_N']:>10.4g}"
+            lines.append(f"{r['spec']:<36}{r['n_params']:>7}{r['rms_N']:>10.4g}"
                          f"{r['aic']:>14.6g}{r['bic']:>14.6g}"
                          f"{'n/a' if held is None else f'{held:.4g}':>12}  {r['converged']}")
         lines.append(f"ranked by {self.ranked_by}")
         return "\n".join(lines)
 
 
+def check_specs(logs: Sequence[Log], specs: Sequence[str], **fit_kw) -> None:
+    """Build every spec's problem on ``logs`` (raises the first spec's :class:`InputError`,
+    e.g. a chamber term without ``bore_mm``), so that no fit runs before all can."""
+    if not specs:
+        raise InputError(None, "--compare", "names no model", "give SPEC,SPEC,...")
+    problem_kw = {k: fit_kw[k] for k in PROBLEM_OPTIONS if k in fit_kw}
+    for spec in specs:
+        try:
+            Problem(list(logs), spec, **problem_kw)
+        except InputError as exc:
+            raise InputError(None, f"--compare model '{spec}'", str(exc),
+                             "drop it from --compare or give what it needs") from None
+
+
 def compare(logs: Sequence[Log], specs: Sequence[str], **fit_kw) -> tuple[Comparison,
                                                                            list[FitResult]]:
-    """Fit every spec to ``logs``; rank by held-out RMS (two logs or more), else by BIC."""
+    """Fit every spec to ``logs``; rank by held-out RMS (two logs or more), else by BIC.
+    Every spec is checked on the logs first (:func:`check_specs`). Each row holds the spec
+    as given (``spec``, e.g. ``maxwell_slip:4``), the built model's spec (``model``), the
+    fit's numbers and its ``parameters`` and ``derived`` values as in ``fit.json``."""
+    check_specs(logs, specs, **fit_kw)
     results, rows = [], []
     for spec in specs:
         result = fit(logs, spec, **fit_kw)
         held = held_out_rms(logs, spec, **fit_kw) if len(logs) >= 2 else None
         results.append(result)
-        rows.append({"model": result.model.spec, "n_params": result.n_params,
+        summary = result.to_dict()
+        rows.append({"spec": spec, "model": result.model.spec, "n_params": result.n_params,
                      "rms_N": result.rms_N, "aic": result.aic, "bic": result.bic,
                      "heldout_rms_N": (math.sqrt(float(np.mean(np.square(held))))
                                        if held else None),
-                     "heldout_rms_per_log_N": held, "converged": result.converged})
+                     "heldout_rms_per_log_N": held, "converged": result.converged,
+                     "parameters": summary["parameters"], "derived": summary["derived"]})
     key = "heldout_rms_N" if len(logs) >= 2 else "bic"
     order = sorted(range(len(rows)), key=lambda i: rows[i][key])
     return (Comparison(tuple(rows[i] for i in order), key), [results[i] for i in order])

@@ -224,3 +224,52 @@ def test_logs_of_very_different_length_run_in_their_own_stacks():
     assert r_split.size < r_one.size                 # less padding
     np.testing.assert_allclose(np.sort(r_split[r_split != 0]), np.sort(r_one[r_one != 0]),
                                rtol=1e-12)
+
+
+def _friction_only_logs(tmp_path, n=2):
+    """Friction-only logs (no rig geometry in the sidecar): chamber terms cannot be built."""
+    paths = []
+    for i, rate in enumerate((1.0, 3.0)[:n]):
+        log = simulate("dahl", TriangleCycles(rate_mm_s=rate, amplitudes_mm=(0.2, 0.6)),
+                       rig=Rig(), params={"sigma0": 40, "Fc": 18}, seed=i, rate_hz=200,
+                       noise=Noise(force_N=0.1, displacement_um=0.0), name=f"f{i}").log
+        paths.append(write_log(log, tmp_path / f"f{i}.csv")[0])
+    return [str(p) for p in paths]
+
+
+def test_cli_compare_writes_the_winner_and_every_models_estimates(tmp_path, capsys):
+    """Issue 17: --compare on friction-only data fits only the compared models (not the
+    default --model, which needs bore_mm), writes the winner's fit.json, keeps spec
+    arguments (maxwell_slip:3) and every model's parameters and derived values."""
+    paths = _friction_only_logs(tmp_path)
+    out = tmp_path / "o"
+    code = main(["fit", *paths, "--compare", "dahl,maxwell_slip:3", "--out", str(out)])
+    printed = capsys.readouterr().out
+    assert code == 0, printed
+    assert "maxwell_slip:3 " in printed and "fit.json holds the winner" in printed
+    data = json.loads((out / "compare.json").read_text())
+    assert [r["spec"] for r in data["models"]][0] == "dahl"            # the truth wins
+    for row in data["models"]:
+        assert row["parameters"] and "breakaway_N" in row["derived"]
+    assert {r["spec"] for r in data["models"]} == {"dahl", "maxwell_slip:3"}
+    assert json.loads((out / "fit.json").read_text())["model"] == "dahl"
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert set(manifest["outputs"]) >= {"fit.json", "compare.json"}
+
+
+def test_cli_compare_checks_every_model_before_any_fit(tmp_path, capsys, monkeypatch):
+    """A compared model the logs cannot carry (a chamber without bore_mm) stops the run
+    before the first fit, naming that model; nothing is written."""
+    import fitstiff.comparison as comparison
+
+    paths = _friction_only_logs(tmp_path)
+    calls = []
+    monkeypatch.setattr(comparison, "fit", lambda *a, **k: calls.append(a) or 1 / 0)
+    out = tmp_path / "o"
+    code = main(["fit", *paths, "--compare", "dahl,chamber+dahl", "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2 and not calls
+    assert "--compare model 'chamber+dahl'" in err and err.count("\n") == 1
+    assert not (out / "compare.json").exists() and not (out / "fit.json").exists()
+    code = main(["fit", *paths, "--compare", "dahl", "--fix", "Fc=18", "--out", str(out)])
+    assert code == 2 and "--fix with --compare" in capsys.readouterr().err

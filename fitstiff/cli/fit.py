@@ -23,6 +23,7 @@ __all__ = ["add_parser", "run", "parse_fix", "fit_options", "add_data_arguments"
 
 FIT = "fit.json"
 COMPARE = "compare.json"
+DEFAULT_MODEL = "chamber+dahl"
 _MAX_WEIGHT = 1e6     # relative region weights beyond this are a typo, not a choice
 
 
@@ -37,17 +38,19 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("--compare", metavar="SPEC,SPEC,...",
                         help="fit several models to the same logs and rank them (held-out "
                              "error over logs with two logs or more, else BIC); writes "
-                             "compare.json")
+                             "compare.json (every model's estimates) and the winner's "
+                             "fit.json; --model, when given, joins the comparison")
     parser.add_argument("--json", action="store_true", help="print fit.json to stdout")
     add_out_argument(parser)
-    parser.set_defaults(func=run)
+    # no default here: with --compare an explicit --model joins the comparison
+    parser.set_defaults(func=run, model=None)
     return parser
 
 
 def add_fit_arguments(parser: argparse.ArgumentParser) -> None:
     """Model and solver options shared by ``fit``, ``posterior`` and ``diagnose``."""
     group = parser.add_argument_group("model and solver")
-    group.add_argument("--model", default="chamber+dahl", metavar="SPEC",
+    group.add_argument("--model", default=DEFAULT_MODEL, metavar="SPEC",
                        help="terms joined by '+' (default chamber+dahl)")
     group.add_argument("--fix", action="append", default=[], metavar="NAME[=VALUE]",
                        help="hold a parameter (value in its display unit, e.g. n=1.4 or "
@@ -149,18 +152,27 @@ def fit_options(args) -> dict[str, object]:
 
 def run(args) -> int:
     options = fit_options(args)
-    fix = parse_fix(args.fix, args.model)
-    planned = [FIT] + ([COMPARE] if args.compare else [])
+    specs = [s for s in (args.compare or "").split(",") if s]
+    if args.compare is not None and args.fix:
+        raise InputError(None, "--fix with --compare", "would hold the parameter in one "
+                         "model only", "compare without --fix, or fit each model on its own")
+    if args.compare is not None and args.model and args.model not in specs:
+        specs.append(args.model)
+    model = args.model or DEFAULT_MODEL
+    fix = parse_fix(args.fix, model)
+    planned = [FIT] + ([COMPARE] if args.compare is not None else [])
     with OutputDir(args.out, inputs=input_paths(args), planned=planned, seed=args.seed,
-                   options={"model": args.model, "fix": args.fix, **options,
+                   options={"model": model, "fix": args.fix, **options, "compare": specs,
                             "reading": reading_options(args)}) as out:
         logs = logs_from_args(args)
-        if args.compare:
-            specs = [s for s in args.compare.split(",") if s]
-            comparison, _ = compare(logs, specs, **options)
+        if args.compare is not None:
+            comparison, results = compare(logs, specs, **options)
             print(comparison.table())
+            result = results[0]
+            print(f"fit.json holds the winner, {comparison.rows[0]['spec']}")
             out.write_json(COMPARE, comparison.to_dict())
-        result = fit(logs, args.model, fix=fix, **options)
+        else:
+            result = fit(logs, model, fix=fix, **options)
         out.write_json(FIT, result.to_dict())
         out.finish()
     if args.json:
