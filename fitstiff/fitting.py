@@ -51,6 +51,8 @@ SOLVERS = {
 }
 _CORRELATION_WARNING = 0.95
 _SINGULAR = 1e-7       # relative singular value below which a direction is undetermined
+#: the pooled lag-1 autocorrelation of the residuals is clipped here (AR(1) factor 14.1)
+_LAG1_CAP = 0.99
 _RESIDUAL_LIMIT = 1e100  # whitened residuals / Jacobian entries beyond this are refused
 
 
@@ -410,7 +412,12 @@ def _summarise(problem: Problem, theta, *, converged: bool, message: str, steps:
                     f"{model_names[i]} and {model_names[j]} are strongly correlated "
                     f"(r = {corr[i, j]:+.3f}): the data determine mainly a combination of "
                     "them, so their separate values are uncertain")
-    if rho > 0.5:
+    if rho >= _LAG1_CAP:
+        warnings.append(f"the residuals follow a slow systematic misfit, not noise (lag-1 r "
+                        f"at its cap {_LAG1_CAP}): the standard errors carry the capped AR(1) "
+                        f"factor {math.sqrt(inflation):.1f}, a lower bound, and do not measure "
+                        "the uncertainty; the model misses an effect (see fitstiff diagnose)")
+    elif rho > 0.5:
         warnings.append(f"residuals are strongly autocorrelated (lag-1 r = {rho:.2f}): "
                         "standard errors are inflated by the AR(1) factor "
                         f"{math.sqrt(inflation):.2f}; the model may miss an effect "
@@ -562,4 +569,4 @@ def _lag1(problem: Problem, per_log_pred) -> float:
         res = res - res.mean()
         num += float(res[1:] @ res[:-1])
         den += float(res @ res)
-    return float(np.clip(num / den, -0.99, 0.99)) if den > 0 else 0.0
+    return float(np.clip(num / den, -_LAG1_CAP, _LAG1_CAP)) if den > 0 else 0.0

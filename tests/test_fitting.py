@@ -273,3 +273,19 @@ def test_cli_compare_checks_every_model_before_any_fit(tmp_path, capsys, monkeyp
     assert not (out / "compare.json").exists() and not (out / "fit.json").exists()
     code = main(["fit", *paths, "--compare", "dahl", "--fix", "Fc=18", "--out", str(out)])
     assert code == 2 and "--fix with --compare" in capsys.readouterr().err
+
+
+def test_capped_residual_autocorrelation_is_called_a_misfit_not_a_factor():
+    """Issue 17 item 7: a fit that misses a smooth force (here the chamber) has residuals
+    whose lag-1 correlation reaches the cap; the warning says the standard errors are a lower
+    bound of a misfit, not an AR(1) factor to trust."""
+    rig = Rig.from_mapping({"bore_mm": 32, "stroke_mm": 700, "start_position_mm": 100,
+                            "supply_bar": 6})
+    log = simulate("chamber+dahl", TriangleCycles(rate_mm_s=1.0, amplitudes_mm=(0.5, 2.0)),
+                   rig=rig, seed=3, rate_hz=500, noise=Noise(force_N=0.01,
+                                                             displacement_um=0.0)).log
+    result = fit([log], "dahl")
+    assert result.residual_autocorrelation == pytest.approx(0.99)
+    text = " ".join(result.warnings)
+    assert "slow systematic misfit" in text and "lower bound" in text
+    assert "strongly autocorrelated" not in text
