@@ -162,7 +162,8 @@ def run(args) -> int:
     fix = parse_fix(args.fix, model)
     planned = [FIT] + ([COMPARE] if args.compare is not None else [])
     with OutputDir(args.out, inputs=input_paths(args), planned=planned, seed=args.seed,
-                   options={"model": model, "fix": args.fix, **options, "compare": specs,
+                   options={"model": model if args.compare is None else args.model,
+                            "fix": args.fix, **options, "compare": specs,
                             "reading": reading_options(args)}) as out:
         logs = logs_from_args(args)
         if args.compare is not None:
