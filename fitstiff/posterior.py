@@ -144,6 +144,7 @@ DEFAULT_MOVES = "de"
 _BALL = 0.1                 # start ball: this times the Laplace standard deviations
 _BALL_FLOOR = 1e-4          # ... and at least this in theta units (undetermined directions)
 _BURN_IN_TAUS = 5.0
+_DISAGREEMENT = 4.0         # posterior median vs least squares, in combined standard deviations
 _TAU_STABLE = 0.05          # the autocorrelation times may change by this between checks,
 _TAU_NOISE_SDS = 3.0        # ... or by this many standard deviations of the estimate's change
 _MIN_ACCEPTANCE = 0.05
@@ -805,6 +806,8 @@ def _collect(problem: Problem, sampler: emcee.EnsembleSampler, check: _Check, *,
         integrated=integrated, moves=moves)
     if not check.converged:
         warnings.append(f"the chain did not converge: {check.reason}")
+    if fit is not None and check.converged:
+        warnings.extend(_disagreements(fit, derived, noise.name))
     if store is not None:
         store.write_kept(thetas)
     best = flat[int(np.argmax(log_prob.ravel()))]
@@ -813,6 +816,32 @@ def _collect(problem: Problem, sampler: emcee.EnsembleSampler, check: _Check, *,
                      log_prob=log_prob, derived=derived, noise=noise, noise_scale=scale,
                      priors=priors, diagnostics=diagnostics, predictive=predictive, fit=fit,
                      warnings=tuple(warnings))
+
+
+def _disagreements(fit: FitResult, derived: Mapping[str, np.ndarray],
+                   noise_name: str) -> list[str]:
+    """Where the converged posterior's median of the slope or the breakaway sits more than
+    :data:`_DISAGREEMENT` combined standard deviations from the least-squares value: on
+    misspecified data the estimate depends on how the residuals are weighted (the noise
+    model's whitening against least squares' per-log noise), and neither interval covers
+    that model error. Says so instead of offering two precise-looking answers."""
+    out = []
+    for key in ("presliding_slope_N_per_mm", "breakaway_N"):
+        values = np.asarray(derived[key]).ravel()
+        value, err = fit.derived.get(key, (math.nan, math.nan))
+        if not (np.isfinite(values).any() and math.isfinite(value)):
+            continue
+        median, sd = float(np.nanmedian(values)), float(np.nanstd(values))
+        scale = math.hypot(err if math.isfinite(err) else 0.0, sd)
+        if scale > 0 and abs(median - value) > _DISAGREEMENT * scale:
+            out.append(f"the posterior and least squares disagree on {key}: {median:.4g} "
+                       f"(posterior median, {noise_name} noise) against {value:.4g} +- "
+                       f"{err:.2g} ({abs(median - value) / scale:.0f} combined standard "
+                       "deviations). The chain converged, so this is not the sampler: the "
+                       "model does not describe these logs and its estimates depend on how "
+                       "the residuals are weighted; quote neither interval, find the missing "
+                       "effect with fitstiff diagnose")
+    return out
 
 
 def _full_thetas(problem: Problem, noise: NoiseModel, layout: Layout,

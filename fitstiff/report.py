@@ -623,7 +623,8 @@ def _posterior_verdict(result: Mapping[str, Any], curves_rms: float) -> _Verdict
                        f"{', '.join(d['integrated'])}.")
     cautions = [w for w in result["warnings"] if d["reason"] not in w]   # said above
     fit = result.get("fit")
-    if fit and curves_rms > (1 + _POSTERIOR_RMS_EXCESS) * fit["rms_N"]:
+    misfit = any("posterior and least squares disagree" in w for w in result["warnings"])
+    if fit and not misfit and curves_rms > (1 + _POSTERIOR_RMS_EXCESS) * fit["rms_N"]:
         cautions.append(f"The posterior median curve's RMS residual, {curves_rms:.3g} N, is "
                         f"more than {100 * _POSTERIOR_RMS_EXCESS:.0f} % above the "
                         f"least-squares fit's {fit['rms_N']:.3g} N: the walkers have not "

@@ -353,3 +353,38 @@ def test_speed_benchmark_reference_is_the_same_log_posterior():
     assert np.ptp(jax_values) > 1.0               # the points are far enough apart to tell
     ref = np.array([reference_log_posterior(c, problem, lp.noise) for c in coords])
     assert np.ptp(ref - jax_values) < 1e-3
+
+
+def test_posterior_that_contradicts_least_squares_says_the_model_is_wrong():
+    """Issue 17 item 1: a converged posterior whose median sits far from the least-squares
+    value (the real O-ring logs with chamber+dahl: breakaway 4.51 N against 6.17 +- 0.11 N)
+    says that the model does not describe the logs and points to fitstiff diagnose; on data
+    the model describes (a Dahl log fitted with dahl), nothing is said."""
+    import types
+
+    from fitstiff.fitting import fit
+    from fitstiff.log import Rig
+    from fitstiff.posterior import _disagreements
+    from fitstiff.programs import TriangleCycles
+    from fitstiff.simulate import Noise, simulate
+
+    rng = np.random.default_rng(0)
+    derived = {"presliding_slope_N_per_mm": 13.8 + 0.27 * rng.standard_normal((50, 8)),
+               "breakaway_N": 4.51 + 0.04 * rng.standard_normal((50, 8))}
+    misfit = types.SimpleNamespace(derived={"presliding_slope_N_per_mm": (32.8, 6.5),
+                                            "breakaway_N": (6.17, 0.11)})
+    said = _disagreements(misfit, derived, "ar1")
+    assert len(said) == 1 and "breakaway_N" in said[0] and "fitstiff diagnose" in said[0]
+    agree = types.SimpleNamespace(derived={"presliding_slope_N_per_mm": (13.9, 0.3),
+                                           "breakaway_N": (4.52, 0.05)})
+    assert _disagreements(agree, derived, "ar1") == []
+
+    rig = Rig.from_mapping({"bore_mm": 32, "stroke_mm": 700, "start_position_mm": 350,
+                            "supply_bar": 6})
+    log = simulate("dahl", TriangleCycles(rate_mm_s=2.0, amplitudes_mm=(0.2, 0.5, 1.0)),
+                   rig=rig, params={"sigma0": 40, "Fc": 18}, seed=2, rate_hz=200,
+                   noise=Noise(force_N=0.05, ar1=0.3)).log
+    post = sample_posterior(fit([log], "dahl"), walkers=16, steps=4000, tau_multiple=20,
+                            check_every=250, seed=1, progress=False, draws=5)
+    assert post.diagnostics.converged, post.diagnostics.reason
+    assert not [w for w in post.warnings if "disagree" in w]
