@@ -240,12 +240,21 @@ def test_a_failed_run_leaves_the_directory_as_it_was(tmp_path, capsys, monkeypat
     assert main(["fit", str(FIG4), "--out", str(out)]) == 0
     before = snapshot(out)
 
-    def fails(*args, **kwargs):
-        raise RuntimeError("solver exploded")
+    from fitstiff.fitting import FitResult
 
-    monkeypatch.setattr(fitstiff.cli.fit, "fit", fails)
+    to_dict, calls = FitResult.to_dict, []
+
+    def fails_after_compare(self):
+        # compare.json takes the first summary; writing the winner's fit.json then fails
+        calls.append(1)
+        if len(calls) > 1:
+            raise RuntimeError("solver exploded")
+        return to_dict(self)
+
+    monkeypatch.setattr(FitResult, "to_dict", fails_after_compare)
     with pytest.raises(RuntimeError):
         main(["fit", str(FIG4), "--compare", "dahl", "--out", str(out)])
+    assert len(calls) == 2
     assert snapshot(out) == before                  # compare.json was staged, not written
     assert not [p for p in out.iterdir() if p.name.startswith(".")]
     # a directory the failed run created is removed again
