@@ -335,6 +335,20 @@ def test_calibration_benchmark_runs_small():
     assert 0 <= p <= 1 and se >= 0
 
 
+def test_default_posterior_benchmark_runs_small(tmp_path):
+    """benchmarks/posterior_default.py on logs 20 x shorter, without the reference: the CLI
+    with default sampler options converges and the summary has what the README quotes."""
+    from benchmarks import posterior_default
+
+    out = tmp_path / "pd.json"
+    posterior_default.main(["--scale", "0.05", "--no-reference", "--json", str(out)])
+    result = json.loads(out.read_text())
+    d = result["default"]
+    assert result["logs"] == 4 and 1500 < result["samples"] < 2000
+    assert d["converged"] and d["moves"] == "de" and len(d["integrated"]) == 4
+    assert d["tau_max"] > 0 and d["wall_s"] > 0
+
+
 # -- the speed benchmark's reference ----------------------------------------------------------
 def test_speed_benchmark_reference_is_the_same_log_posterior():
     """benchmarks/posterior_speed.py compares against a NumPy log-posterior; it must be the
