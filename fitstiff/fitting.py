@@ -134,6 +134,7 @@ class FitResult:
         return {
             "model": self.model.spec,
             "parameters": self.parameters(),
+            "settings": self.model.settings(),
             "derived": {k: {"value": _finite(v), "stderr": _finite(e)}
                         for k, (v, e) in self.derived.items()},
             "rms_N": self.rms_N,

@@ -14,6 +14,7 @@ term. Both are pure JAX: differentiable in every parameter, usable under ``jit``
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from typing import NamedTuple
 
@@ -94,6 +95,17 @@ class Model(eqx.Module):
                              "add chamber, a friction base or a force term")
 
     # -- structure --------------------------------------------------------------------------
+    def settings(self) -> dict[str, dict[str, object]]:
+        """Static (structural) fields of every term that has any, by term name, e.g.
+        ``{"pressure_friction": {"p_ref": 300000.0}}`` (Pa): what a parameter is relative to."""
+        out = {}
+        for term in self.terms:
+            static = {f.name: getattr(term, f.name) for f in dataclasses.fields(term)
+                      if f.metadata.get("static", False)}
+            if static:
+                out[term.name] = static
+        return out
+
     @property
     def spec(self) -> str:
         return "+".join(t.name for t in self.terms)

@@ -168,7 +168,7 @@ def simulate(model_or_spec: Model | str, program: Program, *, rig: Rig,
         "name": name,
         "model": model.spec,
         "parameters": _parameter_table(model),
-        "settings": _settings(model),
+        "settings": model.settings(),
         "rig": _sidecar(rig),
         "noise": dataclasses.asdict(noise),
         "seed": seed,
@@ -197,17 +197,6 @@ def _parameter_table(model: Model) -> dict[str, dict[str, object]]:
         for name, v in zip(names, value):
             table[name] = {"value": float(v) / p.scale, "unit": p.unit}
     return table
-
-
-def _settings(model: Model) -> dict[str, dict[str, object]]:
-    """Static (structural) fields of every term that has any, e.g. ``p_ref`` (Pa)."""
-    out = {}
-    for term in model.terms:
-        static = {f.name: getattr(term, f.name) for f in dataclasses.fields(term)
-                  if f.metadata.get("static", False)}
-        if static:
-            out[term.name] = static
-    return out
 
 
 def _derived(model: Model, drive: Drive) -> dict[str, object]:

@@ -289,3 +289,19 @@ def test_capped_residual_autocorrelation_is_called_a_misfit_not_a_factor():
     text = " ".join(result.warnings)
     assert "slow systematic misfit" in text and "lower bound" in text
     assert "strongly autocorrelated" not in text
+
+
+def test_fit_json_says_what_pressure_friction_is_relative_to():
+    """Issue 17 item 6: beta (1/bar) is relative to p_ref, the mean seal pressure of the logs
+    (0.1 bar grid); fit.json records it under settings."""
+    logs = []
+    for bar in (2.0, 6.0):
+        rig = Rig.from_mapping({"bore_mm": 32, "stroke_mm": 700, "start_position_mm": 350,
+                                "supply_bar": bar})
+        logs.append(simulate("chamber+dahl", TriangleCycles(rate_mm_s=2.0,
+                                                            amplitudes_mm=(0.2, 1.0)),
+                             rig=rig, seed=int(bar), rate_hz=200, name=f"p{bar:g}").log)
+    data = fit(logs, "chamber+dahl+pressure_friction").to_dict()
+    assert data["settings"]["pressure_friction"]["p_ref"] == pytest.approx(4e5)
+    assert data["parameters"]["beta"]["unit"] == "1/bar"
+    assert data["parameters"]["beta"]["value"] == pytest.approx(0.0, abs=0.01)
