@@ -342,7 +342,8 @@ def contributions_over_stroke(model: Model, rig: Rig, *, displacement_mm: float 
     chamber = model.term("chamber")
     if n is None and not chamber.closed:
         raise InputError(None, "chamber over the stroke",
-                         "the model's chamber used measured pressures, so n was not fitted",
+                         "the chambers are regulated (the logged pressures drive the model), "
+                         "so the logs do not determine n",
                          "give n (1.4 for fast, adiabatic compression)")
     n = float(chamber.n if n is None else n)
     u = float(displacement_mm) * MM

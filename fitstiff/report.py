@@ -701,13 +701,24 @@ def _log_table(problem: Problem, curves: _Curves, offsets: Sequence[float | None
         supply = log.rig.supply_pressure
         k_chamber = (float(model.term("chamber").stiffness(problem.drives[i])) * 1e-3
                      if model.has("chamber") else None)
-        rows.append([log.name, str(len(log)),
-                     "n/a" if supply is None else _fmt(supply / 1e5, 3), _fmt(k_chamber, 4),
+        rows.append([log.name, str(len(log)), _pressure_cell(log, supply), _fmt(k_chamber, 4),
                      _fmt(curves.rms(problem, i), 3), _fmt(problem.force_noise[i], 3),
                      _fmt(offsets[i], 3), "yes" if problem.denoised[i] else "no"])
-    return _table(["log", "samples", "supply [bar]", "chamber stiffness [N/mm]",
+    return _table(["log", "samples", "supply [bar gauge]", "chamber stiffness [N/mm]",
                    "RMS residual [N]", "force noise estimate [N]", "force offset [N]",
                    "displacement denoised"], rows)
+
+
+def _pressure_cell(log: Log, supply: float | None) -> str:
+    """The supply pressure, else the mean logged chamber pressure (regulated), else n/a."""
+    if supply is not None:
+        return _fmt(supply / 1e5, 3)
+    logged = [(c.upper(), float(np.mean(g)) / 1e5) for c in "ab"
+              if getattr(log, f"pressure_{c}") is not None
+              and (g := log.gauge(c)) is not None]
+    if not logged:
+        return "n/a"
+    return "regulated " + " / ".join(f"{c} {_fmt(v, 3)}" for c, v in logged)
 
 
 def _inputs_table(run: RunDirectory) -> str:

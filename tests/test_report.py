@@ -178,3 +178,20 @@ def test_not_a_run_directory(tmp_path, setup, message):
 def test_posterior_report_renders_in_chromium(demo, tmp_path):
     """The page as a browser shows it (:func:`conftest.check_renders_in_chromium`)."""
     check_renders_in_chromium(demo / "posterior" / REPORT, tmp_path)
+
+
+def test_log_table_shows_the_regulated_pressure_a_log_carries():
+    """Issue 17 item 5: a log without supply_bar but with a logged chamber pressure (a
+    regulated chamber) shows that pressure (mean, bar gauge), not n/a."""
+    import numpy as np
+
+    from fitstiff.log import Log, Rig
+    from fitstiff.report import _pressure_cell
+
+    x = np.linspace(0.0, 1e-3, 50)
+    regulated = Log("r", displacement=x, force=np.zeros(50), time=np.arange(50) * 0.01,
+                    pressure_a=np.full(50, 101325.0 + 3.0e5), rig=Rig())
+    assert _pressure_cell(regulated, None) == "regulated A 3"
+    assert _pressure_cell(regulated, 6e5) == "6"
+    bare = Log("b", displacement=x, force=np.zeros(50), time=np.arange(50) * 0.01)
+    assert _pressure_cell(bare, None) == "n/a"
