@@ -402,6 +402,28 @@ def standstill(displacement: np.ndarray, time: np.ndarray, *,
     return still
 
 
+def _short_legs(x: np.ndarray, reversals: np.ndarray, presliding_range: float,
+                first_start: int) -> list[str]:
+    """A note when every leg (travel between reversals) is shorter than ``presliding_range``:
+    no sample can count as sliding (issue 17: a 0.23 mm microtribometer stroke against the
+    0.5 mm default had no presliding or sliding sample at all)."""
+    if not x.size:
+        return []
+    ends = np.clip(np.concatenate([[first_start], reversals, [x.size - 1]]).astype(int),
+                   0, x.size - 1)
+    travel = np.abs(np.diff(x[ends]))
+    travel = travel[travel > 0]
+    if not travel.size:
+        return []
+    longest, median = float(travel.max()), float(np.median(travel))
+    if longest >= presliding_range:      # minor loops inside pre-sliding are by design
+        return []
+    return [f"the presliding range ({presliding_range * 1e3:.3g} mm) exceeds every travel "
+            f"between reversals (median {median * 1e3:.3g} mm, longest {longest * 1e3:.3g} "
+            f"mm): no sample can be sliding, and after a pause every sample is dwell; give a "
+            f"shorter --presliding-range-mm (e.g. {median * 1e3 / 3:.2g}) for these logs"]
+
+
 def _default_threshold(raw: np.ndarray) -> float:
     return max(NOISE_MULTIPLE * estimate_noise(raw), RESOLUTION_MULTIPLE * _resolution(raw),
                THRESHOLD_FLOOR)
@@ -492,6 +514,7 @@ def segment(
 
     region = _regions(x, reversals, pauses, in_pause, threshold=threshold,
                       presliding_range=presliding_range)
+    notes += _short_legs(x, reversals, presliding_range, first_start)
 
     if velocity is None:
         speed_band = np.full(n, _BAND_UNKNOWN, dtype=np.int8)

@@ -129,3 +129,23 @@ def test_inspect_imports_neither_jax_nor_matplotlib(tmp_path):
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                           env=env, cwd=tmp_path, check=True)
     assert done.stdout.strip().splitlines()[-1] == f"0 [] {tmp_path / 'cache'}"
+
+
+def test_a_stroke_shorter_than_the_presliding_range_is_named(capsys):
+    """Issue 17 item 4: legs of 0.2 mm against the 0.5 mm default presliding range leave no
+    sample that can be sliding; inspect says so and suggests a range from the data. A log
+    whose longest legs reach the range (minor loops inside) gets no such note."""
+    from conftest import polyline
+
+    from fitstiff.log import Log
+    from fitstiff.segmentation import segment
+
+    t, x = polyline([0.0, 0.2e-3, 0.0, 0.2e-3, 0.0], rate=0.1e-3, fs=1000.0)
+    short = Log("short", displacement=x, force=np.zeros_like(x), time=t)
+    notes = [n for n in segment(short).notes if "presliding range" in n]
+    assert len(notes) == 1 and "no sample can be sliding" in notes[0]
+    assert "--presliding-range-mm (e.g. 0.067)" in notes[0]
+    assert "presliding range" in format_summary(inspect_log(short))
+    t, x = polyline([0.0, 1e-3, 0.8e-3, 1e-3, 0.0], rate=1e-3, fs=1000.0)
+    long = Log("long", displacement=x, force=np.zeros_like(x), time=t)
+    assert not [n for n in segment(long).notes if "presliding range" in n]
