@@ -51,6 +51,8 @@ SOLVERS = {
 }
 _CORRELATION_WARNING = 0.95
 _SINGULAR = 1e-7       # relative singular value below which a direction is undetermined
+_AT_BOUND = 1e-3          # a parameter this close to a bound (share of its span) sits at it
+_BREAKAWAY_EXCESS = 10.0  # breakaway above this many times the largest measured force
 #: the pooled lag-1 autocorrelation of the residuals is clipped here (AR(1) factor 14.1)
 _LAG1_CAP = 0.99
 _RESIDUAL_LIMIT = 1e100  # whitened residuals / Jacobian entries beyond this are refused
@@ -435,6 +437,7 @@ def _summarise(problem: Problem, theta, *, converged: bool, message: str, steps:
             err = float("nan")
         derived[name] = (float(d0[k]), err)
 
+    warnings += _implausible(problem, values, derived)
     identifiability = _identifiability(problem, jac, dphys, g0, state_cols,
                                        {k: v for k, (v, _) in derived.items()})
     withheld = set(identifiability.parameters)
@@ -559,6 +562,38 @@ def _summary_functions(problem: Problem):
         return column
 
     return evaluate
+
+
+def _implausible(problem: Problem, values: np.ndarray,
+                 derived: Mapping[str, tuple[float, float]]) -> list[str]:
+    """Warnings for estimates a converged fit should not be trusted on (issue 17): a
+    parameter at a bound of its range (the data push it out of the model's range, or do not
+    hold it), and a breakaway force far above every measured force (the logs never reach
+    breakaway: the value is the model's extrapolation)."""
+    out = []
+    free = dict(zip(problem.par.names, values))
+    for _, p, names in named_params(problem.model):
+        for name in names:
+            if name not in free:
+                continue
+            x = float(free[name])
+            span = p.upper - p.lower if math.isfinite(p.upper - p.lower) else abs(x)
+            for bound, side in ((p.lower, "lower"), (p.upper, "upper")):
+                if p.null is not None and bound == p.null:
+                    continue          # an effect at its null is simply absent
+                if math.isfinite(bound) and abs(x - bound) <= _AT_BOUND * max(span, p.scale):
+                    out.append(f"{name} sits at its {side} bound ({bound / p.scale:.4g} "
+                               f"{p.unit}): the logs do not hold it inside the model's range; "
+                               "its value and standard error mean nothing (fix it, or record "
+                               "the motion that determines it)")
+    largest = max(float(np.max(np.abs(np.asarray(log.force)))) for log in problem.logs)
+    breakaway = derived.get("breakaway_N", (math.nan, math.nan))[0]
+    if math.isfinite(breakaway) and abs(breakaway) > _BREAKAWAY_EXCESS * largest:
+        out.append(f"the breakaway force {breakaway:.4g} N is more than {_BREAKAWAY_EXCESS:g} "
+                   f"times the largest measured force ({largest:.4g} N): the logs do not "
+                   "reach breakaway, so it is the model's extrapolation, not a measurement "
+                   "(record a log that slides)")
+    return out
 
 
 def _lag1(problem: Problem, per_log_pred) -> float:

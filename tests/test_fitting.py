@@ -305,3 +305,27 @@ def test_fit_json_says_what_pressure_friction_is_relative_to():
     assert data["settings"]["pressure_friction"]["p_ref"] == pytest.approx(4e5)
     assert data["parameters"]["beta"]["unit"] == "1/bar"
     assert data["parameters"]["beta"]["value"] == pytest.approx(0.0, abs=0.01)
+
+
+def test_values_at_a_bound_or_beyond_the_data_are_flagged():
+    """Issue 17 item 3: a converged fit whose parameter sits at a bound of its range (here
+    the polytropic exponent at 1.0, where the data were made) says so; a breakaway force far
+    above every measured force is called an extrapolation. An effect at its null (c = 0) is
+    an absent effect, not a warning."""
+    from fitstiff.fitting import _implausible
+
+    rig = Rig.from_mapping({"bore_mm": 32, "stroke_mm": 700, "start_position_mm": 100,
+                            "supply_bar": 6})
+    log = simulate("chamber+dahl", TriangleCycles(rate_mm_s=2.0, amplitudes_mm=(0.5, 2.0)),
+                   rig=rig, params={"n": 1.0}, seed=3, rate_hz=200,
+                   noise=Noise(force_N=0.05)).log
+    result = fit([log], "chamber+dahl+viscous")
+    text = " ".join(result.warnings)
+    assert "n sits at its lower bound (1 -)" in text
+    assert "c sits at" not in text
+    values = np.asarray([result.value(n) for n in result.problem.par.names])
+    largest = float(np.max(np.abs(log.force)))
+    said = _implausible(result.problem, values, {"breakaway_N": (20 * largest, 1.0)})
+    assert any("model's extrapolation" in w for w in said)
+    assert not any("extrapolation" in w for w in
+                   _implausible(result.problem, values, {"breakaway_N": (18.0, 0.1)}))
