@@ -329,3 +329,11 @@ def test_values_at_a_bound_or_beyond_the_data_are_flagged():
     assert any("model's extrapolation" in w for w in said)
     assert not any("extrapolation" in w for w in
                    _implausible(result.problem, values, {"breakaway_N": (18.0, 0.1)}))
+    # LuGre's static friction below its sliding friction (the real O-ring fit: 0.47 < 6.19 N)
+    from fitstiff.problem import Problem
+
+    lugre = Problem([log], "chamber+lugre")
+    for fs, flagged in ((9.0, True), (18.0, False)):
+        values = np.asarray([{"Fs": fs, "Fc": 18.0}.get(n, 1.0) for n in lugre.par.names])
+        said = _implausible(lugre, values, {"breakaway_N": (fs, 0.1)})
+        assert any("below the sliding friction" in w for w in said) == flagged
