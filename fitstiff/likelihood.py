@@ -381,14 +381,19 @@ class _Quadratic(NoiseModel):
             np.concatenate(series).astype(int), layout, linear=k))
 
     def _squares(self, residuals, layout: Layout):
+        return self._solved(residuals, layout)[1]
+
+    def _solved(self, residuals, layout: Layout):
+        """``(z, q)``: the integrated columns' most probable coefficients (``None`` without
+        any) and the per-series sum of squares with them integrated out."""
         e = self.whiten(residuals, layout)
         q = layout.per_series(e**2)
         if self.marginal is None:
-            return q
+            return None, q
         m = self.marginal
-        _, reduction = m.solve(e)
+        z, reduction = m.solve(e)
         members = _membership(m.series, np.ones(m.series.size, bool), len(layout.series))
-        return q - reduction @ members
+        return z, q - reduction @ members
 
     def log_likelihood(self, residuals, layout: Layout):
         q = self._squares(residuals, layout)
@@ -415,10 +420,7 @@ class _Quadratic(NoiseModel):
             chi2: ``(S,)`` chi-square deviates with :meth:`dof` degrees of freedom.
         """
         m = self.marginal
-        e = self.whiten(residuals, layout)
-        z, reduction = m.solve(e)
-        members = _membership(m.series, np.ones(m.series.size, bool), len(layout.series))
-        q = layout.per_series(e**2) - reduction @ members
+        z, q = self._solved(residuals, layout)
         s = (jnp.sqrt(q / chi2) if self.sigma is None
              else jnp.full(len(layout.series), self.sigma))
         root = jnp.asarray(np.linalg.cholesky(0.5 * (m.inverse + m.inverse.T)))
