@@ -10,7 +10,12 @@ in s.
                                         optional predictive band, per-term forces and a zoom window
 :func:`reversal_zoom_window`            the displacement window just after a reversal (Fig. 4's
                                         pre-sliding view), for ``plot_loop(..., zoom=...)``
+:func:`reversal_zoom_samples`           the samples of one pre-sliding curve after a reversal, for
+                                        ``plot_loop(..., samples=...)``
 :func:`plot_residuals`                  residuals over time or displacement, by segmentation region
+                                        or direction of motion
+:func:`sliding_friction_level`          a log's friction level in gross sliding (N)
+:func:`plot_friction_levels`            sliding friction against pressure, one point per log
 :func:`plot_contributions_over_stroke`  chamber against seal restoring force over the stroke
                                         (:func:`contributions_over_stroke` gives the numbers)
 :func:`plot_corner`                     corner plot of posterior samples (takes a *Figure*)
@@ -53,18 +58,22 @@ if TYPE_CHECKING:
     from fitstiff.fitting import FitResult
 
 __all__ = [
+    "DIRECTION_COLORS",
     "REGION_COLORS",
     "StrokeContributions",
     "contributions_over_stroke",
     "plot_autocorr",
     "plot_contributions_over_stroke",
     "plot_corner",
+    "plot_friction_levels",
     "plot_gap_heatmap",
     "plot_loop",
     "plot_residual_signature",
     "plot_residuals",
     "plot_trace",
+    "reversal_zoom_samples",
     "reversal_zoom_window",
+    "sliding_friction_level",
 ]
 
 REGION_COLORS: Mapping[str, str] = MappingProxyType({
@@ -75,6 +84,10 @@ The overlapping ``stroke_end`` flag is not drawn."""
 
 _MEASURED = "0.55"
 _MODEL = "tab:red"
+_NOT_FITTED = "0.85"
+DIRECTION_COLORS: Mapping[str, str] = MappingProxyType({
+    "toward B": "tab:green", "toward A": "tab:purple", "standing": "tab:gray"})
+"""Colour of each direction of motion (:attr:`Segmentation.direction` +1, -1, 0)."""
 _BAND = "#f5c2c2"       # opaque, so a band the loop crosses twice is not darker there
 _ZOOM_PAD = 0.05        # of the force span in a zoom window
 _AUTOCORR_RUNS = 50     # emcee's rule of thumb: run at least 50 autocorrelation times
@@ -84,7 +97,9 @@ _AUTOCORR_RUNS = 50     # emcee's rule of thumb: run at least 50 autocorrelation
 def plot_loop(ax: Axes, log: Log, prediction: ArrayLike, *,
               band: tuple[ArrayLike, ArrayLike] | None = None,
               contributions: Mapping[str, ArrayLike] | None = None,
-              zoom: tuple[float, float] | None = None, label: str = "model") -> Axes:
+              zoom: tuple[float, float] | None = None, label: str = "model",
+              measured: ArrayLike | None = None, measured_label: str = "measured",
+              samples: slice | None = None, used: ArrayLike | None = None) -> Axes:
     """Measured force over displacement with the model's force on top.
 
     Args:
@@ -101,25 +116,41 @@ def plot_loop(ax: Axes, log: Log, prediction: ArrayLike, *,
             predicted and band values inside it. :func:`reversal_zoom_window` picks the window
             after a reversal, where the pre-sliding curve shows.
         label: legend label of ``prediction``.
+        measured: the measured curve to draw instead of the log's force (N per sample), e.g.
+            the seal's force as measured: the force minus the model's other terms.
+        measured_label: legend label of the measured curve.
+        samples: draw only this run of samples (e.g. :func:`reversal_zoom_samples`: one
+            pre-sliding curve instead of every pass through a displacement window); the
+            axes fit them unless ``zoom`` is given.
+        used: per sample, whether it carried weight in the fit (``--range``, ``--skip``);
+            the others are drawn light grey as "not fitted", without the model.
 
     Returns:
         ``ax``.
 
     Raises:
         InputError: an array whose length is not the log's, a band with ``lower > upper``, a
-            zoom window that is empty or holds no sample.
+            zoom window that is empty or holds no sample, a ``samples`` run that holds none.
     """
-    x = log.displacement / MM
-    force = np.asarray(log.force)
-    model = _per_sample(prediction, log, "prediction")
-    terms = {name: _per_sample(values, log, f"contribution '{name}'")
+    keep = _run_of(samples, log)
+    x = log.displacement[keep] / MM
+    force = (np.asarray(log.force) if measured is None
+             else _per_sample(measured, log, "measured"))[keep]
+    model = _per_sample(prediction, log, "prediction")[keep]
+    terms = {name: _per_sample(values, log, f"contribution '{name}'")[keep]
              for name, values in (contributions or {}).items()}
+    fitted = (np.ones(len(log), dtype=bool) if used is None
+              else _per_sample(used, log, "used").astype(bool))[keep]
     shown = [force, model]
     if band is not None:
-        lower, upper = _band(band, log)
+        lower, upper = (b[keep] for b in _band(band, log))
         ax.add_collection(_ribbon(x, lower, upper, facecolor=_BAND, label="predictive band"))
         shown += [lower, upper]
-    ax.plot(x, force, color=_MEASURED, lw=0.8, label="measured")
+    if not fitted.all():
+        ax.plot(x, force, color=_NOT_FITTED, lw=0.8, label="not fitted")
+        force, model = np.where(fitted, force, np.nan), np.where(fitted, model, np.nan)
+        terms = {name: np.where(fitted, values, np.nan) for name, values in terms.items()}
+    ax.plot(x, force, color=_MEASURED, lw=0.8, label=measured_label)
     ax.plot(x, model, color=_MODEL, lw=1.2, label=label)
     for name, values in terms.items():
         ax.plot(x, values, lw=1.0, ls="--", label=name)
@@ -153,6 +184,49 @@ def reversal_zoom_window(segmentation: Segmentation, log: Log, *, reversal: int 
     Returns:
         ``(low, high)`` in mm, for ``plot_loop(..., zoom=...)``.
     """
+    k, travel = _pick_reversal(segmentation, log, reversal, travel_mm, used=None)
+    x = log.displacement / MM
+    reversals = segmentation.reversals
+    turn = x[reversals[k]]
+    approach = turn - x[reversals[k - 1] if k else 0]
+    end = turn - math.copysign(travel, approach)      # the leg after turns back
+    low, high = sorted((turn, end))
+    return low - margin * travel, high + margin * travel
+
+
+def reversal_zoom_samples(segmentation: Segmentation, log: Log, *, reversal: int | None = None,
+                          travel_mm: float | None = None,
+                          used: ArrayLike | None = None) -> slice:
+    """The samples of one pre-sliding curve: from a reversal until ``travel_mm`` after it.
+
+    Unlike :func:`reversal_zoom_window` (a displacement window, which every pass of the log
+    through it crosses), this is one curve, for ``plot_loop(..., samples=...)``.
+
+    Args:
+        segmentation: the log's segmentation.
+        log: the log.
+        reversal: position in ``segmentation.reversals``; default as in
+            :func:`reversal_zoom_window`, among the reversals whose samples were fitted.
+        travel_mm: travel after the reversal; default the segmentation's pre-sliding range.
+        used: per sample, whether it carried weight in the fit: the default reversal is one
+            whose curve lies in the fitted samples, when there is one.
+
+    Returns:
+        ``slice(start, stop)`` of sample indices, ``start`` the reversal.
+    """
+    k, travel = _pick_reversal(segmentation, log, reversal, travel_mm, used=used)
+    x = log.displacement / MM
+    reversals = segmentation.reversals
+    start = int(reversals[k])
+    leg_end = int(reversals[k + 1]) + 1 if k + 1 < reversals.size else len(log)
+    beyond = np.flatnonzero(np.abs(x[start:leg_end] - x[start]) >= travel)
+    stop = start + int(beyond[0]) + 1 if beyond.size else leg_end
+    return slice(start, max(stop, start + 2))
+
+
+def _pick_reversal(segmentation: Segmentation, log: Log, reversal: int | None,
+                   travel_mm: float | None, *, used: ArrayLike | None) -> tuple[int, float]:
+    """``(k, travel in mm)``: the chosen position in ``segmentation.reversals``."""
     _check_segmentation(segmentation, log)
     reversals = segmentation.reversals
     if reversals.size == 0:
@@ -162,22 +236,27 @@ def reversal_zoom_window(segmentation: Segmentation, log: Log, *, reversal: int 
     if not (math.isfinite(travel) and travel > 0):
         raise InputError(log.name, "zoom travel_mm", f"found {travel_mm!r}",
                          "give a positive travel in mm")
+    if reversal is not None:
+        if not (isinstance(reversal, (int, np.integer))
+                and -reversals.size <= reversal < reversals.size):
+            raise InputError(log.name, f"reversal {reversal!r}", "is not a reversal index",
+                             f"give a whole number from {-reversals.size} to "
+                             f"{reversals.size - 1}")
+        return int(reversal) % reversals.size, travel
     x = log.displacement / MM
-    if reversal is None:
-        before = np.abs(x[reversals] - x[np.insert(reversals[:-1], 0, 0)])
-        after = np.abs(x[np.append(reversals[1:], len(log) - 1)] - x[reversals])
-        k = int(np.argmax(np.where(after >= travel, before, -np.inf)) if np.any(after >= travel)
-                else np.argmax(after))
-    elif isinstance(reversal, (int, np.integer)) and -reversals.size <= reversal < reversals.size:
-        k = int(reversal) % reversals.size
-    else:
-        raise InputError(log.name, f"reversal {reversal!r}", "is not a reversal index",
-                         f"give a whole number from {-reversals.size} to {reversals.size - 1}")
-    turn = x[reversals[k]]
-    approach = turn - x[reversals[k - 1] if k else 0]
-    end = turn - math.copysign(travel, approach)      # the leg after turns back
-    low, high = sorted((turn, end))
-    return low - margin * travel, high + margin * travel
+    nxt = np.append(reversals[1:], len(log) - 1)
+    before = np.abs(x[reversals] - x[np.insert(reversals[:-1], 0, 0)])
+    after = np.abs(x[nxt] - x[reversals])
+    fitted = np.ones(reversals.size, dtype=bool)
+    if used is not None:
+        u = _per_sample(used, log, "used").astype(bool)
+        fitted = u[reversals] & u[nxt]
+        if not fitted.any():
+            fitted[:] = True
+    enough = fitted & (after >= travel)
+    k = int(np.argmax(np.where(enough, before, -np.inf)) if enough.any()
+            else np.argmax(np.where(fitted, after, -np.inf)))
+    return k, travel
 
 
 def _band(band, log: Log) -> tuple[np.ndarray, np.ndarray]:
@@ -236,12 +315,16 @@ def _zoom(ax: Axes, log: Log, x: np.ndarray, curves: Sequence[np.ndarray],
 
 # -- residuals ------------------------------------------------------------------------------------
 def plot_residuals(ax: Axes, log: Log, residual: ArrayLike, segmentation: Segmentation, *,
-                   against: Literal["displacement", "time"] = "displacement") -> Axes:
-    """Force residuals with the segmentation's motion regions, one legend entry per region.
+                   against: Literal["displacement", "time"] = "displacement",
+                   by: Literal["region", "direction"] = "region",
+                   used: ArrayLike | None = None) -> Axes:
+    """Force residuals with the segmentation's motion regions (or directions), one legend
+    entry each.
 
     Against time the regions shade the background (one collection per region) behind the
     residual trace; against displacement, where the regions overlap along the axis, each
-    region's residuals are drawn as points in its colour (:data:`REGION_COLORS`).
+    region's residuals are drawn as points in its colour (:data:`REGION_COLORS`,
+    :data:`DIRECTION_COLORS`).
 
     Args:
         ax: where to draw.
@@ -249,13 +332,32 @@ def plot_residuals(ax: Axes, log: Log, residual: ArrayLike, segmentation: Segmen
         residual: model minus measured force at each sample (N).
         segmentation: the log's segmentation.
         against: ``"displacement"`` (mm) or ``"time"`` (s; the log needs time).
+        by: colour by motion ``"region"`` or by ``"direction"`` of motion (a misfit that
+            changes sign with the direction is a friction level; one that does not, a
+            spring or an offset).
+        used: per sample, whether it carried weight in the fit; the others are drawn as
+            "not fitted" (light grey) in neither region nor direction.
 
     Returns:
         ``ax``.
     """
     res = _per_sample(residual, log, "residual")
     _check_segmentation(segmentation, log)
-    masks = {r: m for r in REGION_COLORS if (m := segmentation.region == REGIONS.index(r)).any()}
+    fitted = (np.ones(len(log), dtype=bool) if used is None
+              else _per_sample(used, log, "used").astype(bool))
+    if by == "region":
+        colors, codes = REGION_COLORS, {r: REGIONS.index(r) for r in REGION_COLORS}
+        per_sample = segmentation.region
+    elif by == "direction":
+        colors, codes = DIRECTION_COLORS, dict(zip(DIRECTION_COLORS, (1, -1, 0)))
+        per_sample = segmentation.direction
+    else:
+        raise InputError(log.name, f"residuals by '{by}'", "is not a colouring",
+                         "use by='region' or by='direction'")
+    masks = {r: m for r in colors if (m := (per_sample == codes[r]) & fitted).any()}
+    if not fitted.all():
+        masks["not fitted"] = ~fitted
+        colors = {**colors, "not fitted": _NOT_FITTED}
     if against == "time":
         if log.time is None:
             raise InputError(log.name, "residuals against time",
@@ -264,7 +366,7 @@ def plot_residuals(ax: Axes, log: Log, residual: ArrayLike, segmentation: Segmen
         t = np.asarray(log.time)
         edges = np.concatenate([t[:1], (t[1:] + t[:-1]) / 2, t[-1:]])   # sample k: edges[k:k+2]
         for region, mask in masks.items():
-            ax.add_collection(_spans(edges, mask, ax, facecolor=REGION_COLORS[region],
+            ax.add_collection(_spans(edges, mask, ax, facecolor=colors[region],
                                      alpha=0.25, label=region), autolim=False)
         ax.plot(t, res, color="k", lw=0.6)
         ax.set_xlim(t[0], t[-1])
@@ -272,16 +374,20 @@ def plot_residuals(ax: Axes, log: Log, residual: ArrayLike, segmentation: Segmen
     elif against == "displacement":
         x = log.displacement / MM
         for region, mask in masks.items():
-            ax.plot(x[mask], res[mask], ls="", marker=".", ms=2.5, color=REGION_COLORS[region],
+            ax.plot(x[mask], res[mask], ls="", marker=".", ms=2.5, color=colors[region],
                     label=region)
         ax.set_xlabel("displacement [mm]")
     else:
         raise InputError(log.name, f"residuals against '{against}'", "is not an axis",
                          "use against='displacement' or against='time'")
     ax.axhline(0.0, color="k", lw=0.6, alpha=0.6)
+    if not fitted.all() and fitted.any():        # the scale of the fitted residuals
+        lo, hi = float(np.nanmin(res[fitted])), float(np.nanmax(res[fitted]))
+        pad = _ZOOM_PAD * (hi - lo) if hi > lo else 1.0
+        ax.set_ylim(min(lo, 0.0) - pad, max(hi, 0.0) + pad)
     ax.set_ylabel("residual, model − measured [N]")
     ax.grid(True, alpha=0.3)
-    ax.legend(title="region", fontsize="small", markerscale=3, loc="lower left",
+    ax.legend(title=by, fontsize="small", markerscale=3, loc="lower left",
               bbox_to_anchor=(0.0, 1.0), ncols=len(masks), frameon=False)
     return ax
 
@@ -598,6 +704,75 @@ def plot_residual_signature(ax: Axes, x: ArrayLike, before: ArrayLike, after: Ar
     else:
         ax.set_title("one value only: no trend to show", fontsize=9)
     return ax
+
+
+def sliding_friction_level(force: ArrayLike, segmentation: Segmentation, *,
+                           used: ArrayLike | None = None) -> float:
+    """The friction level of a log in gross sliding (N): half the difference between the
+    median force sliding toward B and sliding toward A.
+
+    ``force`` is the seal's force, measured (the log's force minus the model's other terms)
+    or modelled; an offset and a spring force symmetric in the two directions cancel. NaN
+    when either direction has no sliding sample (among ``used``).
+    """
+    f = np.asarray(force, dtype=float)
+    if f.shape != (segmentation.n_samples,):
+        raise InputError(segmentation.name, "force", f"has shape {f.shape}",
+                         f"give one value per sample ({segmentation.n_samples})")
+    keep = segmentation.region == REGIONS.index("sliding")
+    if used is not None:
+        keep &= np.asarray(used, dtype=bool)
+    toward_b, toward_a = (keep & (segmentation.direction == d) for d in (1, -1))
+    if not (toward_b.any() and toward_a.any()):
+        return math.nan
+    return 0.5 * abs(float(np.median(f[toward_b])) - float(np.median(f[toward_a])))
+
+
+def plot_friction_levels(ax: Axes, pressure_bar: ArrayLike, measured: ArrayLike,
+                         model: ArrayLike | None = None, *,
+                         names: Sequence[str] | None = None) -> Axes:
+    """Sliding friction level against pressure, one point per log.
+
+    Args:
+        ax: where to draw.
+        pressure_bar: each log's pressure level (bar gauge).
+        measured: each log's measured level (N, :func:`sliding_friction_level` of the force
+            minus the model's other terms).
+        model: each log's modelled level (N), drawn as a line through the logs.
+        names: each log's name, written beside its point.
+
+    Returns:
+        ``ax``.
+    """
+    p = np.asarray(pressure_bar, dtype=float)
+    order = np.argsort(p)
+    ax.plot(p[order], np.asarray(measured, dtype=float)[order], ls="", marker="o",
+            color=_MEASURED, label="measured")
+    if model is not None:
+        ax.plot(p[order], np.asarray(model, dtype=float)[order], marker="x", color=_MODEL,
+                label="model")
+    for i, name in enumerate(names or ()):
+        ax.annotate(name, (p[i], float(np.asarray(measured)[i])), fontsize="x-small",
+                    xytext=(4, 4), textcoords="offset points")
+    ax.set_xlabel("pressure [bar gauge]")
+    ax.set_ylabel("sliding friction [N]")
+    ax.set_ylim(bottom=0.0)
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize="small")
+    return ax
+
+
+def _run_of(samples: slice | None, log: Log) -> slice:
+    if samples is None:
+        return slice(None)
+    if not isinstance(samples, slice) or samples.step not in (None, 1):
+        raise InputError(log.name, f"samples {samples!r}", "is not a run of samples",
+                         "give slice(start, stop), e.g. reversal_zoom_samples(...)")
+    if len(range(*samples.indices(len(log)))) < 2:
+        raise InputError(log.name, f"samples {samples.start}:{samples.stop}",
+                         "hold fewer than two samples",
+                         f"give a run within the log's {len(log)} samples")
+    return samples
 
 
 def _per_sample(values: ArrayLike, log: Log, what: str) -> np.ndarray:

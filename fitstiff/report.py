@@ -380,47 +380,122 @@ def _file_stem(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", name)
 
 
+def _used(problem: Problem, i: int) -> np.ndarray | None:
+    """The samples that carried weight in the run, or ``None`` when all did."""
+    used = problem.sample_weights[i] > 0
+    return None if used.all() else used
+
+
+def _seal(curves: _Curves, i: int) -> np.ndarray | None:
+    """The model's seal force of log ``i`` (its friction terms), ``None`` without one."""
+    seals = [f for label, f in curves.contributions[i].items() if label.startswith("seal (")]
+    return np.sum(seals, axis=0) if seals else None
+
+
 def _loop_figure(problem: Problem, curves: _Curves, i: int) -> ReportFigure:
     log, seg = problem.logs[i], problem.segmentations[i]
     band = curves.band[i] if curves.band else None
-    fig = Figure(figsize=(12, 4.6), layout="constrained")
+    used = _used(problem, i)
+    seal = _seal(curves, i)
+    others = None if seal is None else curves.force[i] - seal     # chamber, offset, ...
+    friction_view = seal is not None and any(not label.startswith("seal (")
+                                             for label in curves.contributions[i])
     try:
-        window = plotting.reversal_zoom_window(seg, log)
+        samples = plotting.reversal_zoom_samples(seg, log, used=used)
     except InputError as exc:          # no reversal: the whole loop only
-        window, note = None, f" No zoom: {exc}."
+        samples, note = None, f" No zoom: {exc}."
     else:
-        note = (f" Right: the first {seg.presliding_range / MM:g} mm after the reversal that "
-                "follows the longest travel (the pre-sliding curve from saturation, as in the "
-                "paper's Fig. 4).")
-    axes = fig.subplots(1, 1 if window is None else 2, squeeze=False)[0]
-    plotting.plot_loop(axes[0], log, curves.force[i], band=band,
-                       contributions=curves.contributions[i], label=curves.label)
-    axes[0].set_title(f"{log.name}: whole log")
-    if window is not None:
-        plotting.plot_loop(axes[1], log, curves.force[i], band=band, zoom=window,
+        t = f"t = {log.time[samples.start]:.4g} s, " if log.time is not None else ""
+        note = (f" Right: the pre-sliding curve after one reversal ({t}sample "
+                f"{samples.start}), {seg.presliding_range / MM:g} mm of travel from the reversal "
+                "that follows the longest travel (the curve from saturation, as in the paper's "
+                "Fig. 4).")
+    panels = 1 + friction_view + (samples is not None)
+    fig = Figure(figsize=(5.2 * panels + 1.0, 4.6), layout="constrained")
+    axes = list(fig.subplots(1, panels, squeeze=False)[0])
+    ax = axes.pop(0)
+    plotting.plot_loop(ax, log, curves.force[i], band=band,
+                       contributions=curves.contributions[i], label=curves.label, used=used)
+    ax.set_title(f"{log.name}: whole log")
+    if friction_view:
+        ax = axes.pop(0)
+        plotting.plot_loop(ax, log, seal, measured=np.asarray(log.force) - others,
+                           measured_label="measured − other terms", label="seal model",
+                           used=used)
+        ax.set_title("seal force alone")
+        note += (" Middle: the seal's force as measured (the force minus the model's other "
+                 "terms and offset) against the modelled seal force, so a friction misfit "
+                 "under a large chamber force shows.")
+    if samples is not None:
+        ax = axes.pop(0)
+        plotting.plot_loop(ax, log, curves.force[i], band=band, samples=samples,
                            label=curves.label)
-        axes[1].set_title("pre-sliding after a reversal")
+        ax.set_title("pre-sliding after a reversal")
     shaded = " The shaded band is the 90 % posterior-predictive band." if band else ""
+    excluded = (" Light grey: samples outside the fitted range (not fitted)."
+                if used is not None else "")
     caption = (f"{log.name}: measured force against displacement with the model "
                f"({curves.label}); dashed: the force of each term (the per-log offset "
-               f"not included).{shaded}{note}")
+               f"not included).{shaded}{excluded}{note}")
     return ReportFigure(f"loop_{_file_stem(log.name)}", caption, fig)
 
 
 def _residual_figure(problem: Problem, curves: _Curves, i: int) -> ReportFigure:
     log, seg = problem.logs[i], problem.segmentations[i]
-    against = ("displacement", "time") if log.has_time else ("displacement",)
-    fig = Figure(figsize=(12, 4.0), layout="constrained")
+    used = _used(problem, i)
+    views = [("displacement", "region"), ("displacement", "direction")]
+    views += [("time", "region")] if log.has_time else []
+    fig = Figure(figsize=(5.2 * len(views) + 1.0, 4.0), layout="constrained")
     residual = curves.residual(problem, i)
-    for ax, axis in zip(fig.subplots(1, len(against), squeeze=False)[0], against):
-        plotting.plot_residuals(ax, log, residual, seg, against=axis)
-    fig.suptitle(f"{log.name}: RMS {curves.rms(problem, i):.3g} N, force noise estimate "
-                 f"{problem.force_noise[i]:.3g} N")
-    caption = (f"{log.name}: residual (model - measured) against displacement and time, "
-               "coloured by motion region (pre-sliding after a reversal, sliding, dwell after a "
-               "standstill, standstill). Structure that repeats at every reversal, or a level "
-               "that differs between the regions, is what the model misses.")
+    for ax, (axis, by) in zip(fig.subplots(1, len(views), squeeze=False)[0], views):
+        plotting.plot_residuals(ax, log, residual, seg, against=axis, by=by, used=used)
+    fitted = "" if used is None else f" over the {int(used.sum())} fitted samples"
+    fig.suptitle(f"{log.name}: RMS {curves.rms(problem, i):.3g} N{fitted}, force noise "
+                 f"estimate {problem.force_noise[i]:.3g} N")
+    caption = (f"{log.name}: residual (model - measured) against displacement, coloured by "
+               "motion region (pre-sliding after a reversal, sliding, dwell after a standstill, "
+               "standstill) and by direction of motion, and against time. Structure that "
+               "repeats at every reversal, a level that differs between the regions, or one "
+               "that flips sign with the direction (a friction level) is what the model misses."
+               + ("" if used is None else f" The RMS is{fitted}; light grey: samples outside "
+                  "the fitted range."))
     return ReportFigure(f"residuals_{_file_stem(log.name)}", caption, fig)
+
+
+def _friction_section(problem: Problem, curves: _Curves) -> _Section | None:
+    """Sliding friction per log and pressure, measured (force minus the model's other terms)
+    and modelled; ``None`` when the model has no seal."""
+    rows, points = [], []
+    for i, (log, seg) in enumerate(zip(problem.logs, problem.segmentations)):
+        seal = _seal(curves, i)
+        if seal is None:
+            return None
+        used = problem.sample_weights[i] > 0
+        measured = np.asarray(log.force) - (curves.force[i] - seal)
+        level = plotting.sliding_friction_level(measured, seg, used=used)
+        modelled = plotting.sliding_friction_level(seal, seg, used=used)
+        bar = None if seg.pressure_level is None else seg.pressure_level / 1e5
+        rows.append([log.name, _fmt(bar, 3), _fmt(level, 3), _fmt(modelled, 3),
+                     _fmt(modelled - level, 3)])
+        if bar is not None and math.isfinite(level):
+            points.append((bar, level, modelled, log.name))
+    html = _table(["log", "pressure [bar gauge]", "measured sliding friction [N]",
+                   "model sliding friction [N]", "model − measured [N]"], rows) + _p(
+        "Sliding friction: half the difference between the median seal force sliding toward B "
+        "and toward A (offsets and spring forces cancel). Measured: the force minus the "
+        "model's other terms (chamber, offset, ...); model: the fitted seal force. A model "
+        "that misses how friction grows with pressure shows as a trend in the last column "
+        "(add pressure_friction; its beta is the relative change per bar from its reference "
+        "pressure).")
+    if len({round(p[0], 2) for p in points}) < 2:
+        return _Section("Friction against pressure", html=html)
+    fig = Figure(figsize=(6.5, 4.2), layout="constrained")
+    bar, level, modelled, names = zip(*points)
+    plotting.plot_friction_levels(fig.add_subplot(), bar, level, modelled, names=names)
+    figure = ReportFigure("friction_vs_pressure", "Sliding friction of every log against its "
+                          "pressure level: measured (points) and the fitted model (crosses).",
+                          fig)
+    return _Section("Friction against pressure", html=html, figures=(figure,))
 
 
 def _stroke_figure(problem: Problem, model: Model) -> ReportFigure | str:
@@ -451,6 +526,7 @@ def _model_sections(problem: Problem, curves: _Curves) -> list[_Section]:
         _Section("Loops", figures=tuple(_loop_figure(problem, curves, i) for i in range(n))),
         _Section("Residuals", figures=tuple(_residual_figure(problem, curves, i)
                                             for i in range(n))),
+        *filter(None, [_friction_section(problem, curves)]),
         _Section("Chamber against seal over the stroke",
                  html=_p(stroke) if isinstance(stroke, str) else "",
                  figures=() if isinstance(stroke, str) else (stroke,)),

@@ -184,6 +184,79 @@ def test_residuals_reject_bad_input(ex):
                                 against="time")
 
 
+def test_residuals_by_direction_colour_each_direction_and_grey_the_unfitted(ex):
+    ax = new_axes()
+    used = np.zeros(len(ex.log), dtype=bool)
+    used[len(ex.log) // 3:] = True
+    plotting.plot_residuals(ax, ex.log, ex.residual, ex.segmentation, by="direction", used=used)
+    assert ax.get_legend().get_title().get_text() == "direction"
+    labels = legend_texts(ax)
+    assert labels[-1] == "not fitted" and set(labels[:-1]) <= set(plotting.DIRECTION_COLORS)
+    points = {line.get_label(): line for line in ax.lines if line.get_label() in labels}
+    assert sum(len(p.get_xdata()) for p in points.values()) == len(ex.log)
+    assert len(points["not fitted"].get_xdata()) == np.count_nonzero(~used)
+    toward_b = (ex.segmentation.direction == 1) & used
+    np.testing.assert_allclose(points["toward B"].get_ydata(), ex.residual[toward_b])
+    # the force axis is the fitted residuals' scale
+    low, high = ax.get_ylim()
+    assert low <= ex.residual[used].min() and high >= ex.residual[used].max()
+    assert high - low < 1.2 * (max(ex.residual[used].max(), 0) - min(ex.residual[used].min(), 0))
+    with pytest.raises(InputError, match="residuals by 'speed': is not a colouring"):
+        plotting.plot_residuals(new_axes(), ex.log, ex.residual, ex.segmentation, by="speed")
+
+
+def test_loop_draws_one_presliding_curve_and_unfitted_samples_grey(ex):
+    seg, log = ex.segmentation, ex.log
+    run = plotting.reversal_zoom_samples(seg, log)
+    assert run.start in seg.reversals
+    x = log.displacement[run] * 1e3
+    travel = np.abs(x - x[0])
+    assert travel[-1] >= seg.presliding_range * 1e3 > travel[-2]    # stops at the travel
+    # the same reversal as the displacement window's
+    low, high = plotting.reversal_zoom_window(seg, log, margin=0)
+    assert math.isclose(x[0], low) or math.isclose(x[0], high)
+    ax = new_axes()
+    plotting.plot_loop(ax, log, ex.force, samples=run)
+    np.testing.assert_allclose(ax.lines[0].get_ydata(), log.force[run])
+    assert ax.get_xlim()[0] >= x.min() - 0.1 * np.ptp(x)    # scaled to the one curve
+    used = np.ones(len(log), dtype=bool)
+    used[run.start:] = False
+    earlier = plotting.reversal_zoom_samples(seg, log, used=used)
+    assert earlier.stop <= run.start                        # a curve among the fitted samples
+    ax = new_axes()
+    plotting.plot_loop(ax, log, ex.force, used=used, measured=log.force - 1.0,
+                       measured_label="measured - 1 N")
+    assert legend_texts(ax) == ["not fitted", "measured - 1 N", "model"]
+    shifted = ax.lines[1].get_ydata()
+    assert np.isnan(shifted[~used]).all()
+    np.testing.assert_allclose(shifted[used], log.force[used] - 1.0)
+    with pytest.raises(InputError, match="is not a run of samples"):
+        plotting.plot_loop(new_axes(), log, ex.force, samples=[1, 2, 3])
+    with pytest.raises(InputError, match="hold fewer than two samples"):
+        plotting.plot_loop(new_axes(), log, ex.force, samples=slice(5, 6))
+
+
+def test_sliding_friction_level_is_half_the_gap_between_directions(ex):
+    seg = ex.segmentation
+    level = 3.0
+    # a friction square wave plus an offset and a spring: only the friction survives
+    force = (level * seg.direction + 7.0 + 2000.0 * ex.log.displacement)
+    sliding = seg.region == 1
+    assert plotting.REGIONS[1] == "sliding" and sliding.any()
+    got = plotting.sliding_friction_level(force, seg)
+    spring = 2000.0 * ex.log.displacement
+    expected = 0.5 * abs(np.median((level + 7 + spring)[sliding & (seg.direction == 1)])
+                         - np.median((-level + 7 + spring)[sliding & (seg.direction == -1)]))
+    assert got == pytest.approx(expected)
+    assert plotting.sliding_friction_level(force, seg, used=np.zeros(len(force), bool)) != \
+        plotting.sliding_friction_level(force, seg, used=np.zeros(len(force), bool))   # NaN
+    ax = new_axes()
+    plotting.plot_friction_levels(ax, [1.0, 3.0, 5.0], [4.0, 5.5, 7.0], [6.0, 6.0, 6.0],
+                                  names=["a", "b", "c"])
+    assert legend_texts(ax) == ["measured", "model"]
+    assert ax.get_xlabel() == "pressure [bar gauge]" and ax.get_ylim()[0] == 0.0
+
+
 # -- chamber against seal over the stroke ---------------------------------------------------------
 def test_contributions_over_stroke_match_closed_forms(ex):
     model, rig = ex.result.model, ex.log.rig

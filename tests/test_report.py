@@ -67,7 +67,8 @@ def test_bundled_logs_are_the_generated_ones():
 def test_demo_ends_in_a_posterior_report(demo):
     report = demo / "posterior" / REPORT
     figures = (loop_figures("loop") | loop_figures("residuals")
-               | {"chamber_vs_seal", "corner", "trace_n", "trace_sigma0", "trace_Fc"})
+               | {"chamber_vs_seal", "corner", "trace_n", "trace_sigma0", "trace_Fc",
+                  "friction_vs_pressure"})
     check_page(report, figures)
     page = report.read_text(encoding="utf-8")
     assert "Posterior report: chamber+dahl" in page
@@ -98,6 +99,11 @@ def test_fit_report(tmp_path):
     page = report.read_text(encoding="utf-8")
     assert "Fit report: chamber+dahl" in page
     assert "The fit converged (lm, " in page
+    # issue 17 item 5: the samples outside --range are drawn as not fitted, the RMS is theirs
+    assert "Light grey: samples outside the fitted range (not fitted)." in page
+    assert "over the 600 fitted samples" in page
+    # one pressure: the friction table without the plot
+    assert "Friction against pressure" in page and "friction_vs_pressure" not in page
     assert re.search(r"<td class=\"name\">Fc</td><td class=\"num\">18\.\d*</td>", page)
     assert json.loads((tmp_path / REPORT_MANIFEST).read_text())["options"]["kind"] == "fit"
 
@@ -195,3 +201,20 @@ def test_log_table_shows_the_regulated_pressure_a_log_carries():
     assert _pressure_cell(regulated, 6e5) == "6"
     bare = Log("b", displacement=x, force=np.zeros(50), time=np.arange(50) * 0.01)
     assert _pressure_cell(bare, None) == "n/a"
+
+
+def test_friction_against_pressure_and_the_seal_alone(demo):
+    """Issue 17 items 5-6: the demo's logs (0-6 bar, one seal friction level of 18 N) show a
+    sliding friction per log, measured and modelled, that agree; the loop figure shows the
+    seal force alone (force minus chamber and offset) beside the whole loop."""
+    page = (demo / "posterior" / REPORT).read_text(encoding="utf-8")
+    section = page[page.index("Friction against pressure"):]
+    rows = re.findall(r"<tr><td class=\"name\">(p\dbar_x350mm)</td>"
+                      r"<td class=\"num\">([-0-9.]+)</td><td class=\"num\">([-0-9.]+)</td>"
+                      r"<td class=\"num\">([-0-9.]+)</td>", section)
+    assert [r[0] for r in rows] == [p.stem for p in fig4_logs()]
+    for _, bar, measured, model in rows:
+        assert 5.0 < float(measured) < 18.5        # below Fc: the short legs do not saturate
+        assert float(model) == pytest.approx(float(measured), rel=0.05)
+    assert [float(r[1]) for r in rows] == pytest.approx([0, 2, 4, 6], abs=0.05)
+    assert "Middle: the seal&#x27;s force as measured" in page
