@@ -402,26 +402,43 @@ def standstill(displacement: np.ndarray, time: np.ndarray, *,
     return still
 
 
-def _short_legs(x: np.ndarray, reversals: np.ndarray, presliding_range: float,
-                first_start: int) -> list[str]:
-    """A note when every leg (travel between reversals) is shorter than ``presliding_range``:
-    no sample can count as sliding (issue 17: a 0.23 mm microtribometer stroke against the
-    0.5 mm default had no presliding or sliding sample at all)."""
+def _legs(x: np.ndarray, reversals: np.ndarray, first_start: int) -> np.ndarray:
+    """Travel of every leg (between reversals, from the first motion to the end), > 0 (m)."""
     if not x.size:
-        return []
+        return np.empty(0)
     ends = np.clip(np.concatenate([[first_start], reversals, [x.size - 1]]).astype(int),
                    0, x.size - 1)
     travel = np.abs(np.diff(x[ends]))
-    travel = travel[travel > 0]
-    if not travel.size:
-        return []
-    longest, median = float(travel.max()), float(np.median(travel))
-    if longest >= presliding_range:      # minor loops inside pre-sliding are by design
-        return []
-    return [f"the presliding range ({presliding_range * 1e3:.3g} mm) exceeds every travel "
-            f"between reversals (median {median * 1e3:.3g} mm, longest {longest * 1e3:.3g} "
-            f"mm): no sample can be sliding, and after a pause every sample is dwell; give a "
-            f"shorter --presliding-range-mm (e.g. {median * 1e3 / 3:.2g}) for these logs"]
+    return travel[travel > 0]
+
+
+def _presliding_range(legs: np.ndarray, given: float | None) -> tuple[float, list[str]]:
+    """The presliding range to use, and a note when it cannot leave a sliding sample.
+
+    Given: used as it is, with a note when every leg is shorter (no sample can count as
+    sliding; issue 17: a 0.23 mm microtribometer stroke against the 0.5 mm default had no
+    presliding or sliding sample at all). Default: :data:`DEFAULT_PRESLIDING_RANGE`, or a
+    third of the median leg when every leg is shorter than that, said in a note.
+    """
+    if not legs.size:
+        return (DEFAULT_PRESLIDING_RANGE if given is None else given), []
+    longest, median = float(legs.max()), float(np.median(legs))
+    if given is None:
+        if longest >= DEFAULT_PRESLIDING_RANGE:
+            return DEFAULT_PRESLIDING_RANGE, []
+        derived = median / 3.0
+        return derived, [
+            f"every travel between reversals (median {median * 1e3:.3g} mm, longest "
+            f"{longest * 1e3:.3g} mm) is shorter than the default presliding range "
+            f"({DEFAULT_PRESLIDING_RANGE * 1e3:g} mm): the presliding range is a third of the "
+            f"median travel, {derived * 1e3:.2g} mm; give --presliding-range-mm to set it"]
+    if longest >= given:      # minor loops inside pre-sliding are by design
+        return given, []
+    return given, [
+        f"the presliding range ({given * 1e3:.3g} mm) exceeds every travel between reversals "
+        f"(median {median * 1e3:.3g} mm, longest {longest * 1e3:.3g} mm): no sample can be "
+        f"sliding, and after a pause every sample is dwell; give a shorter "
+        f"--presliding-range-mm (e.g. {median * 1e3 / 3:.2g}) for these logs"]
 
 
 def _default_threshold(raw: np.ndarray) -> float:
@@ -433,7 +450,7 @@ def segment(
     log: Log,
     *,
     threshold: float | None = None,
-    presliding_range: float = DEFAULT_PRESLIDING_RANGE,
+    presliding_range: float | None = None,
     min_pause: float = DEFAULT_MIN_PAUSE,
     pause_band: float | None = None,
     speed_edges: tuple[float, float] = DEFAULT_SPEED_EDGES,
@@ -448,7 +465,9 @@ def segment(
         threshold: hysteresis threshold for reversals (m); default from the noise (module
             docstring: ``max(10 * noise, 4 * resolution, 1 um)``).
         presliding_range: travel after a reversal (``presliding``) or a pause (``dwell``)
-            before the motion counts as ``sliding`` (m); default 0.5 mm (DESIGN §1.2).
+            before the motion counts as ``sliding`` (m); default 0.5 mm (DESIGN §1.2), or a
+            third of the median travel between reversals when every travel is shorter (a
+            short-stroke rig; :attr:`Segmentation.notes` says so).
         min_pause: shortest standstill reported as a pause (s).
         pause_band: displacement band a standstill stays within (m); default ``threshold``.
         speed_edges: ``(slow/medium, medium/fast)`` edges of ``|velocity|`` (m/s); default
@@ -512,9 +531,11 @@ def segment(
         in_pause[start:stop] = True
     direction[in_pause] = 0
 
+    presliding_range, more = _presliding_range(_legs(x, reversals, first_start),
+                                               presliding_range)
+    notes += more
     region = _regions(x, reversals, pauses, in_pause, threshold=threshold,
                       presliding_range=presliding_range)
-    notes += _short_legs(x, reversals, presliding_range, first_start)
 
     if velocity is None:
         speed_band = np.full(n, _BAND_UNKNOWN, dtype=np.int8)

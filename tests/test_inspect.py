@@ -10,6 +10,7 @@ import pytest
 from fitstiff.cli import main
 from fitstiff.inspection import format_summary, inspect_log
 from fitstiff.loading import load_log
+from fitstiff.segmentation import REGIONS
 
 FS = 200.0
 SIDECAR = {"bore_mm": 32, "rod_mm": 0, "stroke_mm": 100, "start_position_mm": 50,
@@ -142,9 +143,18 @@ def test_a_stroke_shorter_than_the_presliding_range_is_named(capsys):
 
     t, x = polyline([0.0, 0.2e-3, 0.0, 0.2e-3, 0.0], rate=0.1e-3, fs=1000.0)
     short = Log("short", displacement=x, force=np.zeros_like(x), time=t)
-    notes = [n for n in segment(short).notes if "presliding range" in n]
+    given = segment(short, presliding_range=0.5e-3)
+    notes = [n for n in given.notes if "presliding range" in n]
     assert len(notes) == 1 and "no sample can be sliding" in notes[0]
     assert "--presliding-range-mm (e.g. 0.067)" in notes[0]
+    assert not (given.region == 1).any()                 # no sliding sample
+    # the default follows the data: a third of the median leg, said in a note
+    derived = segment(short)
+    assert derived.presliding_range == pytest.approx(0.2e-3 / 3, rel=0.02)
+    notes = [n for n in derived.notes if "presliding range" in n]
+    assert len(notes) == 1 and "a third of the median travel, 0.067 mm" in notes[0]
+    shares = {r: float(np.mean(derived.region == k)) for k, r in enumerate(REGIONS)}
+    assert shares["sliding"] > 0.5 and shares["presliding"] > 0.2
     assert "presliding range" in format_summary(inspect_log(short))
     t, x = polyline([0.0, 1e-3, 0.8e-3, 1e-3, 0.0], rate=1e-3, fs=1000.0)
     long = Log("long", displacement=x, force=np.zeros_like(x), time=t)

@@ -41,9 +41,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                           "estimated displacement noise, at least 4 x the sensor resolution "
                           "and 0.001 mm)")
     seg.add_argument("--presliding-range-mm", type=cli_number, metavar="D",
-                     default=DEFAULT_PRESLIDING_RANGE * 1e3,
                      help="travel after a reversal or pause counted as presliding / dwell "
-                          f"(default {DEFAULT_PRESLIDING_RANGE * 1e3:g})")
+                          f"(default {DEFAULT_PRESLIDING_RANGE * 1e3:g}, or a third of the "
+                          "median travel between reversals when every travel is shorter)")
     seg.add_argument("--min-pause-s", type=cli_number, metavar="T", default=DEFAULT_MIN_PAUSE,
                      help=f"shortest standstill reported as a pause (default {DEFAULT_MIN_PAUSE:g})")
     parser.add_argument("--json", action="store_true", help="print JSON instead of text")
@@ -55,7 +55,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     """Load, segment and summarise every log; print text or JSON; optionally write it."""
-    options = {"presliding_range": args.presliding_range_mm * 1e-3,
+    options = {"presliding_range": (None if args.presliding_range_mm is None
+                                    else args.presliding_range_mm * 1e-3),
                "min_pause": args.min_pause_s}
     if args.threshold_mm is not None:
         options["threshold"] = args.threshold_mm * 1e-3
