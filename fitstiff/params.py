@@ -245,6 +245,7 @@ class Parameterization:
         terms = list(model.terms)
         by_name = {n: (i, p, None if p.size is None else e)
                    for i, p, names in named_params(model) for e, n in enumerate(names)}
+        touched: dict[tuple[int, str], tuple[Param, str]] = {}
         for name, value in values.items():
             if name not in by_name:
                 raise InputError(where, f"parameter '{name}'", "is not in this model",
@@ -255,8 +256,12 @@ class Parameterization:
             else:
                 new = np.array(getattr(terms[i], p.field), dtype=float)
                 new[e] = float(value)
-            p.check(new, where=where or name)
             terms[i] = dataclasses.replace(terms[i], **{p.field: new})
+            touched.setdefault((i, p.field), (p, name))
+        # checked once all values are in: an ordered vector set element by element passes
+        # through orders that the final one does not have
+        for (i, field), (p, name) in touched.items():
+            p.check(getattr(terms[i], field), where=where or name)
         return model.with_terms(tuple(terms))
 
 

@@ -65,6 +65,26 @@ def test_solver_status_is_never_dropped(tmp_path, capsys):
     assert "NOT CONVERGED" in result.table()
 
 
+def test_a_spent_step_budget_with_a_flat_cost_is_converged_and_says_so():
+    """Issue 17 item 3 (LuGre on the O-ring logs): the step budget can run out while the cost
+    no longer changes on the scale of the standard errors. Started at the optimum with a
+    one-step budget, the fit is converged and says why; two steps from the data-driven
+    start, where the cost still falls, it is not."""
+    from fitstiff.fitting import fit_problem
+    from fitstiff.problem import Problem
+
+    log = _single(1.0, seed=3)
+    problem = Problem([log], "dahl")
+    best = fit_problem(problem)
+    assert best.converged
+    again = fit_problem(problem, max_steps=1, initial=problem.unpack(best.theta))
+    assert again.converged and again.message.startswith("converged (the cost is flat")
+    assert any(w.startswith("the step budget ran out with the cost flat") for w in again.warnings)
+    np.testing.assert_allclose(again.theta, best.theta, rtol=1e-4, atol=1e-6)
+    early = fit_problem(problem, max_steps=2)
+    assert not early.converged and "maximum number of steps" in early.message
+
+
 def test_identifiability_warning_names_the_combination():
     log = _single(0.0, seed=4)
     result = fit([log], "dahl+rig_compliance")

@@ -404,3 +404,21 @@ def test_every_canonical_name_is_a_term():
     assert set(EFFECTS) <= set(TERMS)
     assert [n for n, _ in parse_spec("chamber+maxwell_slip:4+viscous")] == [
         "chamber", "maxwell_slip", "viscous"]
+
+
+def test_an_ordered_vector_is_checked_once_all_its_elements_are_set():
+    """Setting slip displacements element by element passes through unordered vectors: the
+    held-out fits of ``--compare`` set a Maxwell-slip fit's [1.4, 39, 52, 77] um into a model
+    holding [180, 360, 540, 720] um one name at a time and failed on the way (issue 17, the
+    O-ring logs). Only the final vector must be increasing."""
+    from fitstiff.params import Parameterization
+
+    model = build_model("maxwell_slip:4")
+    par = Parameterization(model)
+    fitted = {"delta_1": 0.0014e-3, "delta_4": 0.077e-3, "delta_2": 0.039e-3,
+              "delta_3": 0.052e-3}
+    done = par.with_values(model, fitted)
+    np.testing.assert_allclose(np.asarray(done.term("maxwell_slip").delta),
+                               [0.0014e-3, 0.039e-3, 0.052e-3, 0.077e-3])
+    with pytest.raises(InputError, match="delta_2: parameter 'delta'.*give an increasing"):
+        par.with_values(model, {"delta_2": 10.0e-3})
