@@ -105,7 +105,7 @@ def diagnose(logs: Sequence[Log], *, baseline: str = "chamber+dahl",
         if not remaining:
             break
         scores, hold = screen(sp, theta, hold, active=active, candidates=remaining,
-                              noise=noise, weights=weights, alpha=alpha)
+                              noise=noise, weights=weights, alpha=alpha, min_gain=MIN_GAIN)
         for s in scores:
             first.setdefault(s.effect, s)
         # refitted in batches of _MAX_REFITS, strongest score first: the next batch only
