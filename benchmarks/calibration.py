@@ -117,6 +117,19 @@ def coverage(rows, noise_model: str, key: str) -> tuple[float, float]:
     return p, math.sqrt(max(p * (1 - p), 1e-12) / len(hits))
 
 
+def agreement(rows, noise_model: str, key: str) -> tuple[float, float, float]:
+    """Posterior against least squares where the model is right (issue 17 item 1): the median
+    and largest ``|posterior median - least squares| / least-squares standard error``, and the
+    median ratio of the 90 % interval widths (posterior / least squares)."""
+    shift, width = [], []
+    for r in rows:
+        ls, post = r["least_squares"][key], r[noise_model][key]
+        se = (ls["q95"] - ls["q05"]) / (2 * _Z90)
+        shift.append(abs(post["q50"] - ls["q50"]) / se)
+        width.append((post["q95"] - post["q05"]) / (ls["q95"] - ls["q05"]))
+    return float(np.median(shift)), float(np.max(shift)), float(np.median(width))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--datasets", type=int, default=50)
@@ -154,6 +167,11 @@ def main() -> None:
             p, se = coverage(rows, m, key)
             print(f"{m:13s} {key:28s} 90 % interval coverage {100 * p:5.1f} % "
                   f"+- {100 * se:.1f} ({len(rows)} datasets)")
+    for m in models:
+        for key in QUANTITIES:
+            mid, top, ratio = agreement(rows, m, key)
+            print(f"{m:13s} {key:28s} posterior median - least squares: median {mid:.2f}, "
+                  f"largest {top:.2f} standard errors; interval width ratio {ratio:.2f}")
     for m in models:
         conv = np.mean([r[m]["converged"] for r in rows])
         print(f"{m:13s} converged in {100 * conv:.0f} % of the runs")

@@ -149,3 +149,24 @@ def test_diagnosis_of_one_log_holds_out_blocks_of_loops_and_names_nothing(bar):
     assert list(result.accepted) == []
     assert result.unexplained
     assert result.gap["final_heldout_rms_N"] == result.gap["heldout_rms_N"]
+
+
+@pytest.mark.slow
+def test_lugre_on_the_seal_logs_converges_and_its_breakaway_is_flagged():
+    """Issue 17 item 3: LuGre on the four O-ring logs used to stop at the 400-step cap, printed
+    as not converged: its initial friction states walk towards their bounds while the cost
+    stays flat. Now it converges and says what still moves; its "breakaway" Fs below the
+    sliding friction Fc is flagged as not seal physics."""
+    from fitstiff.fitting import fit
+    from fitstiff.loading import load_logs
+
+    logs = load_logs([path_of(bar) for bar in SAMPLES], fmt="zillen_oring")
+    result = fit(logs, "chamber+lugre")
+    assert result.converged, result.message
+    text = " ".join(result.warnings)
+    assert "the step budget ran out with the cost flat" in text
+    assert "friction_state0" in text
+    assert "below the sliding friction Fc" in text
+    values = result.parameters()
+    assert values["Fs"]["value"] < values["Fc"]["value"]
+    assert 5.5 < values["Fc"]["value"] < 7.0          # the sliding level the Dahl fit finds
