@@ -46,27 +46,16 @@ there for white residuals and ``student_t`` for outliers.
 :class:`~fitstiff.fitting.FitResult`); the walkers start in a Gaussian ball around its optimum
 with 0.1 times its Laplace covariance (mapped to ``theta``).
 
-**Convergence.** The chain runs in chunks of ``check_every`` steps. After each chunk the
-integrated autocorrelation time of every coordinate is estimated (emcee's estimator,
-``tol=0`` so it never raises) and the run stops when all of: the chain is longer than
-``tau_multiple`` times the largest time; every time changed since the previous check by
-less than 5 % or three standard deviations of the estimate's change on a stationary chain
-(:func:`_tau_change_sd`). A strict 5 % is below the estimator's noise at 50-90 times: on a
-stationary chain of the demo logs (tau about 22, 32 walkers, seven coordinates) the change
-between checks 500 steps apart (at 1 500 and 2 000 steps, 31 windows) had an rms of 6.7 %
-(5.6 % predicted); 5 % failed 90 % of these checks, two standard deviations 35 %, three
-none; the mean acceptance fraction is at least 0.05 and no walker accepts less
-than a fifth of the median walker. Otherwise it stops at ``steps`` with ``converged`` False and
-the reason; it is never dropped. ``discard`` = 5 times the largest time (at most half the
-chain), ``thin`` = half of it unless given; effective samples = walkers x kept steps / tau.
+**Convergence** (:mod:`fitstiff.convergence`): the chain runs in chunks of ``check_every``
+steps and stops when it is longer than ``tau_multiple`` autocorrelation times, the times are
+stable between checks and the walkers move. Otherwise it stops at ``steps`` with ``converged``
+False and the reason; it is never dropped. ``discard`` = 5 times the largest time (at most
+half the chain), ``thin`` = half of it unless given; effective samples = walkers x kept steps /
+tau.
 
-**Resume.** With ``backend`` (a path) the chain goes to an :class:`emcee.backends.HDFBackend`
-file (steps written in batches at most a second apart, and at once when the run is
-interrupted), together with a signature of the problem (model, names, data hash, noise model,
-priors, walkers), the estimated noise settings and the least-squares optimum.
-``resume=True`` checks the signature and continues from the last stored step with the stored
-random state, so an interrupted and resumed run gives the same chain as an uninterrupted one
-(convergence checks fall on the same absolute step numbers).
+**Resume** (:mod:`fitstiff.chain`): with ``backend`` (a path) the chain goes to an HDF5 file
+with a signature of the problem; ``resume=True`` checks it and continues from the last stored
+step, giving the same chain as an uninterrupted run.
 
 **Outputs.** :class:`Posterior`: thinned samples in SI, quantiles (``q05``, ``q50``, ``q95``,
 ``mean``, ``std``) of the parameters and of the derived quantities of DESIGN §1.2 (computed by a
@@ -78,31 +67,26 @@ fit.json), draws of the model force for the report, ``posterior.json`` content
 from __future__ import annotations
 
 import dataclasses
-import hashlib
-import json
 import math
 import os
 import sys
-import time
 import warnings
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from pathlib import Path
 
 import emcee
-import h5py
 import numpy as np
 
 from fitstiff import likelihood
 from fitstiff._jax import jax, jnp
+from fitstiff.chain import CHAIN, KEPT, ChainStore, fixed_values, signature
+from fitstiff.convergence import Check, run_chunks
 from fitstiff.derived import DERIVED, derived_quantities, split_unit
 from fitstiff.errors import InputError
 from fitstiff.fitting import FitResult, fit_problem
 from fitstiff.guards import nonfinite_error
-from fitstiff.likelihood import (Layout, LinearNuisances, NoiseModel, TurningPoints,
-                                 noise_from_dict)
+from fitstiff.likelihood import Layout, LinearNuisances, NoiseModel, TurningPoints
 from fitstiff.log import Log
 from fitstiff.model import Model
-from fitstiff.params import Parameterization
 from fitstiff.priors import Prior, Priors
 from fitstiff.problem import PROBLEM_OPTIONS, Problem
 
@@ -124,10 +108,8 @@ __all__ = [
 
 DEFAULT_NOISE_MODEL = "ar1"
 #: the files a posterior run writes next to ``posterior.json`` (``fitstiff posterior``)
-CHAIN = "chain.h5"                  # the emcee chain (HDF5 backend), resumable
 INFERENCE_DATA = "posterior.nc"     # ArviZ InferenceData (netCDF)
 PREDICTIVE = "predictive.npz"       # model-force draws for the report
-KEPT = "kept_theta"                 # chain.h5 fitstiff/kept_theta: full theta of the kept draws
 #: measured 90 % interval coverage (``python -m benchmarks.calibration --datasets 50 --steps
 #: 12000 --noise-models ar1``: benchmarks/results/calibration_50_de.json; the white-noise
 #: figures from an older run, benchmarks/results/calibration_50.json)
@@ -145,10 +127,6 @@ _BALL = 0.1                 # start ball: this times the Laplace standard deviat
 _BALL_FLOOR = 1e-4          # ... and at least this in theta units (undetermined directions)
 _BURN_IN_TAUS = 5.0
 _DISAGREEMENT = 4.0         # posterior median vs least squares, in combined standard deviations
-_TAU_STABLE = 0.05          # the autocorrelation times may change by this between checks,
-_TAU_NOISE_SDS = 3.0        # ... or by this many standard deviations of the estimate's change
-_MIN_ACCEPTANCE = 0.05
-_STUCK_FRACTION = 0.2
 _DERIVED_BATCH = 256
 _RESIDUAL_BATCH = 32        # rows per call of functions that run the model over whole logs
 _PREDICTIVE_BATCH = 25
@@ -269,7 +247,7 @@ class Posterior:
         """The ``posterior.json`` content (DESIGN §5)."""
         problem = self.problem
         parameters: dict[str, object] = {n: self.summary(n) for n in self.model_names}
-        fixed = _fixed_values(problem)
+        fixed = fixed_values(problem)
         for name, value in fixed.items():
             scale = problem.par_scale(name)
             parameters[name] = {"value": value / scale, "unit": problem.par_unit(name),
@@ -360,11 +338,6 @@ def _summary(values: np.ndarray, *, unit: str) -> dict[str, object]:
     return out
 
 
-def _fixed_values(problem: Problem) -> dict[str, float]:
-    values = Parameterization(problem.model).values(problem.model)
-    return {n: v for n, v in values.items() if n in problem.par_fixed}
-
-
 # -- the sampler ------------------------------------------------------------------------------
 def sample_posterior(logs_or_fit: Sequence[Log] | FitResult, model: Model | str | None = None,
                      *, fix: Mapping[str, float | None] | Iterable[str] = (),
@@ -429,14 +402,14 @@ def sample_posterior(logs_or_fit: Sequence[Log] | FitResult, model: Model | str 
                          f"fewer than twice the {len(sampled)} sampled coordinates "
                          f"({', '.join(sampled)})",
                          f"give --walkers {2 * len(sampled) + 2} or more")
-    signature = _signature(problem, noise, prior_set, walkers) | {
+    stored_as = signature(problem, noise, prior_set, walkers) | {
         "moves": moves, "integrated": [problem.names[i] for i in integrated]}
-    store = _ChainStore(backend) if backend is not None else None
+    store = ChainStore(backend) if backend is not None else None
     seeds = np.random.SeedSequence(seed).spawn(3)
     warnings: list[str] = []
 
     if resume:
-        noise, theta_start = store.resume(signature)
+        noise, theta_start = store.resume(stored_as)
         fit_result = None
     else:
         if fit_result is None:
@@ -462,7 +435,7 @@ def sample_posterior(logs_or_fit: Sequence[Log] | FitResult, model: Model | str 
     if not resume:
         emcee_backend.reset(walkers, ndim)
         if store:
-            store.write_settings(signature, settings=noise, theta_start=theta_start)
+            store.write_settings(stored_as, settings=noise, theta_start=theta_start)
     sampler = emcee.EnsembleSampler(walkers, ndim, log_prob, vectorize=True,
                                     backend=emcee_backend, moves=MOVES[moves]())
     if resume:
@@ -473,7 +446,7 @@ def sample_posterior(logs_or_fit: Sequence[Log] | FitResult, model: Model | str 
         state = emcee.State(coords, log_prob=lp0, random_state=np.random.RandomState(
             np.random.MT19937(seeds[1])).get_state())
     try:
-        check = _run_chunks(sampler, state, names=coordinates.names(problem), steps=steps,
+        check = run_chunks(sampler, state, names=coordinates.names(problem), steps=steps,
                             tau_multiple=tau_multiple, check_every=check_every,
                             progress=sys.stderr.isatty() if progress is None else progress,
                             after_chunk=store.compact if store else None)
@@ -675,108 +648,12 @@ def _start(fit: FitResult, problem: Problem, log_prob: LogPosterior, walkers: in
                           "(no place for the walkers)")
 
 
-@dataclasses.dataclass(frozen=True)
-class _Check:
-    converged: bool
-    reason: str
-    tau: np.ndarray
-    steps: int
-
-
-def _run_chunks(sampler: emcee.EnsembleSampler, state, *, names: Sequence[str], steps: int,
-                tau_multiple: float, check_every: int, progress: bool,
-                after_chunk: Callable[[], None] | None) -> _Check:
-    """Run until the convergence rules hold or ``steps`` is reached; checks at multiples of
-    ``check_every`` (absolute step numbers, so a resumed run stops where an uninterrupted
-    one would). ``after_chunk`` runs after every chunk."""
-    from tqdm.auto import tqdm
-
-    done = sampler.iteration
-    check = _convergence(sampler, names, tau_multiple, check_every) if done else None
-    with tqdm(total=steps, initial=done, disable=not progress, desc="posterior",
-              unit="step", file=sys.stderr) as bar:
-        while not (check and check.converged) and done < steps:
-            stop = min(steps, (done // check_every + 1) * check_every)
-            for latest in sampler.sample(state, iterations=stop - done, store=True):
-                bar.update(1)
-            state = latest
-            done = stop
-            if after_chunk:
-                after_chunk()
-            check = _convergence(sampler, names, tau_multiple, check_every)
-            bar.set_postfix_str(f"need {tau_multiple:g} tau = "
-                                f"{tau_multiple * np.nanmax(check.tau):.0f} steps")
-    if not check.converged and done >= steps:
-        check = dataclasses.replace(check, reason=f"reached the step cap (--steps {steps}): "
-                                                  f"{check.reason}")
-    return check
-
-
-def _integrated_time(chain: np.ndarray) -> np.ndarray:
-    """emcee's autocorrelation time per coordinate; NaN (without numpy's 0/0 warning) for a
-    coordinate that never moved, which :func:`_convergence` reports."""
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return emcee.autocorr.integrated_time(chain, tol=0, quiet=True)
-
-
-def _convergence(sampler: emcee.EnsembleSampler, names: Sequence[str], tau_multiple: float,
-                 check_every: int) -> _Check:
-    chain = sampler.get_chain()
-    n = chain.shape[0]
-    tau = _integrated_time(chain)
-    worst = int(np.nanargmax(tau)) if np.isfinite(tau).any() else 0
-    tau_max = float(tau[worst])
-    if not np.isfinite(tau_max):
-        return _Check(False, "the autocorrelation time is not finite (a coordinate never "
-                             "moved)", tau, n)
-    if n < tau_multiple * tau_max:
-        return _Check(False, f"{n} steps < {tau_multiple:g} x tau = "
-                             f"{tau_multiple * tau_max:.0f} (tau {tau_max:.1f} for "
-                             f"{names[worst]})", tau, n)
-    previous = ((n - 1) // check_every) * check_every
-    if previous <= 0:
-        return _Check(False, "one check only: the autocorrelation times are not yet known to "
-                             "be stable", tau, n)
-    before = _integrated_time(chain[:previous])
-    allowed = np.maximum(_TAU_STABLE, _TAU_NOISE_SDS * _tau_change_sd(tau, chain.shape[1],
-                                                                       previous, n))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        change = np.abs(tau - before) / tau
-    if np.nanmax(change - allowed) > 0:
-        k = int(np.nanargmax(change - allowed))
-        return _Check(False, f"the autocorrelation time of {names[k]} changed by "
-                             f"{100 * change[k]:.0f} % since step {previous} (more than "
-                             f"{100 * allowed[k]:.0f} %)", tau, n)
-    acceptance = sampler.acceptance_fraction
-    if np.mean(acceptance) < _MIN_ACCEPTANCE:
-        return _Check(False, f"mean acceptance fraction {np.mean(acceptance):.3f} < "
-                             f"{_MIN_ACCEPTANCE}: the walkers barely move", tau, n)
-    stuck = acceptance < _STUCK_FRACTION * np.median(acceptance)
-    if stuck.any():
-        return _Check(False, f"{int(stuck.sum())} walkers accept less than "
-                             f"{_STUCK_FRACTION:g} x the median walker (stuck, or the "
-                             "posterior has separate modes)", tau, n)
-    return _Check(True, f"{n} steps >= {tau_multiple:g} x tau = {tau_multiple * tau_max:.0f} "
-                        f"(tau {tau_max:.1f} for {names[worst]}), autocorrelation times stable "
-                        f"within {100 * float(np.max(allowed)):.0f} %", tau, n)
-
-
-def _tau_change_sd(tau: np.ndarray, walkers: int, previous: int, n: int) -> np.ndarray:
-    """Relative standard deviation of the change of an autocorrelation-time estimate between
-    ``previous`` and ``n`` steps of a stationary chain: Sokal's variance of the estimate,
-    ``2 (2 M + 1) tau**2 / N`` for a window ``M = 5 tau`` (emcee's), averaged over the
-    walkers; the later estimate contains the earlier data, so the variance of the difference
-    is the difference of the variances."""
-    window = 5.0 * tau
-    return np.sqrt(2.0 * (2.0 * window + 1.0) / walkers * (1.0 / previous - 1.0 / n))
-
-
 # -- after sampling ---------------------------------------------------------------------------
-def _collect(problem: Problem, sampler: emcee.EnsembleSampler, check: _Check, *,
+def _collect(problem: Problem, sampler: emcee.EnsembleSampler, check: Check, *,
              noise: NoiseModel, layout: Layout, priors: Priors, coordinates: _Coordinates,
              fit: FitResult | None, thin: int | None, draws: int, tau_multiple: float,
              moves: str, rng: np.random.Generator, warnings: list[str],
-             store: _ChainStore | None) -> Posterior:
+             store: ChainStore | None) -> Posterior:
     n, walkers = check.steps, sampler.nwalkers
     tau_max = float(np.nanmax(check.tau)) if np.isfinite(check.tau).any() else float(n)
     discard = min(math.ceil(_BURN_IN_TAUS * tau_max), n // 2)
@@ -920,127 +797,3 @@ def _predictive(problem: Problem, noise: NoiseModel, layout: Layout, flat: np.nd
         offset += length
     arrays["draw_index"] = np.sort(pick)
     return arrays, scale
-
-
-# -- the chain file ---------------------------------------------------------------------------
-def _signature(problem: Problem, noise: NoiseModel, priors: Priors,
-               walkers: int) -> dict[str, object]:
-    """What must match for a stored chain to be continued."""
-    h = hashlib.sha256()
-    for log, weights in zip(problem.logs, problem.sample_weights):
-        for a in (log.displacement, log.force, log.time, log.pressure_a, log.pressure_b,
-                  weights):
-            h.update(b"-" if a is None else np.ascontiguousarray(a, dtype=float).tobytes())
-    return {"model": problem.model.spec, "names": list(problem.names), "walkers": walkers,
-            "noise_model": noise.to_dict(), "priors": priors.to_dict(),
-            "fixed": _fixed_values(problem), "data_sha256": h.hexdigest()}
-
-
-class _ChainStore:
-    """The HDF5 chain file: emcee's ``mcmc`` group plus fitstiff's settings (signature of the
-    problem, estimated noise settings) for :func:`sample_posterior` ``resume``."""
-
-    _GROUP = "fitstiff"
-
-    def __init__(self, path: str | os.PathLike):
-        self.path = Path(path)
-        self.backend = _BufferedHDFBackend(str(self.path), name="mcmc")
-
-    def write_settings(self, signature: Mapping[str, object], *, settings: NoiseModel,
-                       theta_start: np.ndarray) -> None:
-        """Store what a resumed run needs: the signature, the estimated noise settings and
-        the least-squares optimum they (and the turning-point columns) were taken at."""
-        with h5py.File(self.path, "a") as f:
-            group = f.require_group(self._GROUP)
-            group.attrs["signature"] = json.dumps(signature, sort_keys=True)
-            group.attrs["noise"] = json.dumps(settings.to_dict())
-            group.attrs["theta_start"] = np.asarray(theta_start, dtype=float)
-
-    def write_kept(self, thetas: np.ndarray) -> None:
-        """Store the full ``theta`` of every kept draw ``(draws, walkers, size)``: the chain
-        holds the sampled coordinates only, these add the integrated entries' conditional
-        draws (read by the report)."""
-        with h5py.File(self.path, "a") as f:
-            group = f.require_group(self._GROUP)
-            if KEPT in group:
-                del group[KEPT]
-            group.create_dataset(KEPT, data=np.asarray(thetas, dtype=float))
-
-    def compact(self) -> None:
-        """Rewrite the file without the space the random-state attribute updates leave
-        behind (about 5 kB per update), atomically."""
-        self.backend.flush()
-        tmp = self.path.with_name(f".{self.path.name}.compact")
-        with h5py.File(self.path, "r") as src, h5py.File(tmp, "w") as dst:
-            for name in src:
-                src.copy(src[name], dst, name=name)
-        os.replace(tmp, self.path)
-
-    def resume(self, signature: Mapping[str, object]) -> tuple[NoiseModel, np.ndarray]:
-        """Check the stored chain against ``signature``; the stored noise settings and
-        least-squares optimum."""
-        where = str(self.path)
-        try:
-            with h5py.File(self.path, "r") as f:
-                attrs = dict(f[self._GROUP].attrs)
-                iterations = int(f["mcmc"].attrs["iteration"])
-        except (OSError, KeyError):
-            raise InputError(where, "--resume", "holds no chain to resume",
-                             "run without --resume first") from None
-        if iterations == 0:
-            raise InputError(where, "--resume", "holds no sampled step yet",
-                             "run without --resume")
-        stored = json.loads(attrs["signature"])
-        mine = json.loads(json.dumps(signature, sort_keys=True))
-        for key in sorted(mine):
-            if stored.get(key) != mine[key]:
-                raise InputError(where, "--resume", f"the chain was sampled with another {key} "
-                                 f"({_short(stored.get(key))} vs {_short(mine[key])} now)",
-                                 "resume with the original logs and options, or drop --resume "
-                                 "to start over")
-        return noise_from_dict(json.loads(attrs["noise"])), np.asarray(attrs["theta_start"])
-
-
-def _short(value: object) -> str:
-    text = json.dumps(value) if not isinstance(value, str) else value
-    return text if len(text) <= 60 else text[:57] + "..."
-
-
-class _BufferedHDFBackend(emcee.backends.HDFBackend):
-    """emcee's HDF5 backend writing the steps in batches, at most ``flush_seconds`` apart
-    (opening the file for every step costs more than a step of a small problem). Every read
-    writes the pending steps first; :func:`sample_posterior` flushes when interrupted, so a
-    hard kill loses at most ``flush_seconds`` of sampling and never corrupts stored steps."""
-
-    flush_seconds = 1.0
-
-    def __init__(self, filename: str, *, name: str):
-        super().__init__(filename, name=name)
-        self._pending: list[tuple[np.ndarray, np.ndarray, np.ndarray, object]] = []
-        self._flushed_at = time.monotonic()
-
-    def save_step(self, state, accepted):
-        self._pending.append((np.array(state.coords), np.array(state.log_prob),
-                              np.array(accepted), state.random_state))
-        if time.monotonic() - self._flushed_at >= self.flush_seconds:
-            self.flush()
-
-    def flush(self) -> None:
-        """Write the pending steps."""
-        if self._pending:
-            coords, log_prob, accepted, _ = zip(*self._pending)
-            with super().open("a") as f:
-                g = f[self.name]
-                start, k = int(g.attrs["iteration"]), len(coords)
-                g["chain"][start:start + k] = np.stack(coords)
-                g["log_prob"][start:start + k] = np.stack(log_prob)
-                g["accepted"][:] += np.sum(accepted, axis=0)
-                for i, v in enumerate(self._pending[-1][3]):
-                    g.attrs[f"random_state_{i}"] = v
-                g.attrs["iteration"] = start + k
-            self._pending = []
-        self._flushed_at = time.monotonic()
-
-    def open(self, mode="r"):
-        self.flush()
-        return super().open(mode)
