@@ -4,27 +4,14 @@
 >>> write_report("out/fit")                                   # doctest: +SKIP
 PosixPath('out/fit/report.html')
 
-**What kind of report.** The directory's result file decides (:data:`RESULT_FILES`, first
-match): ``posterior.json`` (``fitstiff posterior --out``) or ``fit.json`` (``fitstiff fit
---out``). The directory's ``manifest.json`` must list that file among its outputs, so a
-manifest of another run in the same directory is not mistaken for this one's. A new kind
-(``diagnosis.json``) adds an entry to :data:`RESULT_FILES` and a builder to ``_BUILDERS``.
-
-**The data.** Loops are redrawn from the logs, so the report re-reads them from the manifest's
-``inputs`` after checking every file's SHA-256 (a missing or changed file is an
-:class:`~fitstiff.errors.InputError` naming it), with the manifest's reading options
-(``options["reading"]``: keyword arguments of :func:`~fitstiff.loading.load_logs`, when
-recorded) and rebuilds the :class:`~fitstiff.problem.Problem` with the recorded model, fixed
-parameters and problem options (:data:`~fitstiff.problem.PROBLEM_OPTIONS`).
-
-**The model's curves are recomputed, not stored.** Fit: the parameters of ``fit.json`` and each
-log's offset and initial friction state give the fitted ``theta`` exactly; the report then
-checks that every log's RMS residual reproduces ``fit.json`` (else the logs were read or the
-rig set up differently, and it says so instead of drawing another fit). Posterior: draws of
-``chain.h5`` after the burn-in and thinning in ``posterior.json`` give the median curve, a
-90 % posterior-predictive band (spread of the model force over the draws combined with the
-estimated noise level) and the median per-term forces; the trace and autocorrelation plots use
-the whole chain; the corner plot uses ``posterior.nc``.
+**What it draws from.** :func:`fitstiff.run.open_run` re-opens the directory (the result
+file decides the kind: ``posterior.json``, ``fit.json`` or ``diagnosis.json``), re-reads and
+verifies the logs and rebuilds the problem; :mod:`fitstiff.run` recomputes the model's curves
+(a fit's exactly, checked against ``fit.json``; a posterior's median, 90 % predictive band and
+per-term forces from draws of ``chain.h5``). This module is presentation only: figures,
+tables, words and the page. A new kind adds an entry to :data:`~fitstiff.run.RESULT_FILES`
+and a builder to ``_BUILDERS``; the trace and autocorrelation plots use the whole chain, the
+corner plot ``posterior.nc``.
 
 **The page** is one self-contained HTML file: inline CSS, every image an embedded base64 PNG,
 no script, no external reference; it opens offline. Every figure is also written as PNG and
@@ -47,21 +34,19 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
-import h5py
 import numpy as np
 from matplotlib.figure import Figure
 
 from fitstiff import __version__, plotting
-from fitstiff._jax import jax, jnp
 from fitstiff.derived import split_unit
 from fitstiff.errors import InputError
-from fitstiff.loading import load_logs
 from fitstiff.log import Log
-from fitstiff.model import Model, build_model
-from fitstiff.output import OutputDir, sha256_file
-from fitstiff.params import find_param
-from fitstiff.posterior import CHAIN, INFERENCE_DATA, KEPT
-from fitstiff.problem import NUISANCES, PROBLEM_OPTIONS, Problem
+from fitstiff.model import Model
+from fitstiff.output import OutputDir
+from fitstiff.posterior import INFERENCE_DATA
+from fitstiff.problem import Problem
+from fitstiff.run import (MANIFEST, RESULT_FILES, Chain, Curves, RunDirectory, fit_curves,
+                          open_run, posterior_curves, read_chain, read_json)
 from fitstiff.stiffness import MM
 
 __all__ = ["FIGURES", "PLANNED", "REPORT", "REPORT_MANIFEST", "RESULT_FILES", "ReportFigure",
@@ -69,294 +54,14 @@ __all__ = ["FIGURES", "PLANNED", "REPORT", "REPORT_MANIFEST", "RESULT_FILES", "R
 
 REPORT = "report.html"
 FIGURES = "figures"
-MANIFEST = "manifest.json"
 REPORT_MANIFEST = "report.manifest.json"
-RESULT_FILES: Mapping[str, str] = {"posterior": "posterior.json", "fit": "fit.json",
-                                   "diagnosis": "diagnosis.json"}
-"""Report kind -> the result file that makes a directory one of that kind (checked in order)."""
 PLANNED = (REPORT, f"{FIGURES}/")
 """What a report writes into its directory (besides :data:`REPORT_MANIFEST`)."""
 
 _Z90 = 1.6448536269514722       # two-sided 90 % of a standard normal
-_PER_LOG_NUISANCES = {"offset": ("offset_N", 1.0), "friction_state0": ("friction_state0", 1.0),
-                      "closing_pressure": ("closing_pressure_bar", 1e5)}
-"""Nuisance -> its fit.json ``per_log`` key and the factor to the unit of Problem.pack."""
-_REPRODUCE_RTOL = 1e-3          # recomputed per-log RMS against fit.json
 _POSTERIOR_RMS_EXCESS = 0.10    # median curve worse than least squares by more: say so
 _DPI = 100
 _METADATA = {"png": {"Software": None}, "svg": {"Date": None}}
-
-
-# -- the run directory ----------------------------------------------------------------------
-@dataclasses.dataclass(frozen=True, eq=False)
-class RunDirectory:
-    """A finished run re-opened for reporting.
-
-    Attributes:
-        path: the directory.
-        kind: a key of :data:`RESULT_FILES`.
-        result: the result file's content (``fit.json`` / ``posterior.json``).
-        manifest: the run's ``manifest.json``.
-        problem: the rebuilt problem (re-read logs, recorded model and options); ``None`` for
-            a diagnosis (which compares several models: its page works from the logs and the
-            held-out residuals it kept).
-        inputs: the manifest's input files, each ``(path, sha256)``, all verified.
-        logs: the re-read logs.
-    """
-
-    path: Path
-    kind: str
-    result: Mapping[str, Any]
-    manifest: Mapping[str, Any]
-    problem: Problem | None
-    inputs: tuple[tuple[Path, str], ...]
-    logs: tuple[Log, ...] = ()
-
-    @property
-    def result_file(self) -> Path:
-        return self.path / RESULT_FILES[self.kind]
-
-
-def open_run(directory: str | Path) -> RunDirectory:
-    """Read a run directory: its result and manifest, the verified logs, the rebuilt problem.
-
-    Raises:
-        InputError: not a run directory, no or a foreign manifest, an input file missing or
-            changed since the run.
-    """
-    path = Path(directory)
-    if not path.is_dir():
-        raise InputError(str(path), "report directory", "does not exist or is not a directory",
-                         "give the --out directory of fitstiff fit or fitstiff posterior")
-    kind = next((k for k, name in RESULT_FILES.items() if (path / name).is_file()), None)
-    if kind is None:
-        raise InputError(str(path), "report directory",
-                         f"holds none of {', '.join(RESULT_FILES.values())}",
-                         "give the --out directory of fitstiff fit, posterior or diagnose")
-    name = RESULT_FILES[kind]
-    result = _read_json(path / name)
-    latest = _read_json(path / MANIFEST, missing="the run did not finish; run it again")
-    # the run that wrote the result file: the manifest's, or one it keeps as an earlier run
-    manifest = next((record for record in [latest, *latest.get("earlier_runs", [])]
-                     if name in record.get("outputs", [])), None)
-    if manifest is None:
-        raise InputError(str(path / MANIFEST), "outputs",
-                         f"do not include {name} (the manifest is of another run: "
-                         f"{latest.get('command', '?')})",
-                         "give every run its own --out directory")
-    started = Path(manifest.get("cwd", "."))   # relative paths are relative to it
-    inputs = tuple(_verified({**entry, "path": str(started / entry["path"])},
-                             manifest=path / MANIFEST) for entry in manifest["inputs"])
-    options = manifest.get("options", {})
-    logs = _reread([str(started / f) for f in result["files"]], options,
-                   manifest=path / MANIFEST)
-    problem = None if kind == "diagnosis" else _problem(logs, result, options)
-    return RunDirectory(path=path, kind=kind, result=result, manifest=manifest,
-                        problem=problem, inputs=inputs, logs=tuple(logs))
-
-
-def _reread(files: Sequence[str], options: Mapping[str, Any], *, manifest: Path) -> list[Log]:
-    """The run's logs, read as the run read them (``options["reading"]``: keyword arguments of
-    :func:`~fitstiff.loading.load_logs`), or as canonical CSV files where the manifest does
-    not record how."""
-    reading = options.get("reading")
-    try:
-        return load_logs(files, **(reading or {}))
-    except InputError as exc:
-        if reading is not None:
-            raise
-        raise InputError(str(manifest), "re-reading the run's logs",
-                         f"failed ({exc}): the manifest does not record how they were read "
-                         "(--format, --columns, --no-header, --delimiter, rig overrides), so "
-                         "they were read as canonical CSV files",
-                         "report runs on canonical CSV logs, or runs whose manifest records "
-                         "options['reading']") from None
-
-
-def _read_json(path: Path, *, missing: str = "run the command that writes it") -> dict:
-    if not path.is_file():
-        raise InputError(str(path), "file", "is missing", missing)
-    try:
-        return json.loads(path.read_text(encoding="utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputError(str(path), "JSON", f"does not parse ({exc})",
-                         "restore the file written by fitstiff") from None
-
-
-def _verified(entry: Mapping[str, str], *, manifest: Path) -> tuple[Path, str]:
-    """An input of the run, checked against the SHA-256 its manifest recorded."""
-    path = Path(entry["path"])
-    if not path.is_file():
-        raise InputError(str(path), f"input of the run in {manifest}",
-                         "is missing", "restore the file or run again")
-    digest = sha256_file(path)
-    if digest != entry["sha256"]:
-        raise InputError(str(path), f"input of the run in {manifest}",
-                         f"has changed since the run (sha256 {digest[:12]}... now, "
-                         f"{entry['sha256'][:12]}... recorded)",
-                         "restore the original file or run again on the new one")
-    return path, digest
-
-
-def _problem(logs: Sequence[Log], result: Mapping[str, Any],
-             options: Mapping[str, Any]) -> Problem:
-    """The run's problem: its model, fixed values (from the result file, exact) and the
-    nuisances it fixed (from the manifest's ``fix``), its problem options."""
-    spec = result["model"]
-    template = build_model(spec)
-    fix: dict[str, float | None] = {
-        name: p["value"] * find_param(template, name).scale
-        for name, p in result["parameters"].items() if p.get("fixed")}
-    fix |= dict.fromkeys(n for item in options.get("fix", [])
-                         if (n := item.partition("=")[0]) in NUISANCES)
-    recorded = {k: options[k] for k in PROBLEM_OPTIONS if k in options}
-    if recorded.get("sample_range") is not None:        # a JSON list
-        recorded["sample_range"] = tuple(recorded["sample_range"])
-    return Problem(logs, spec, fix=fix, **recorded)
-
-
-# -- the model's curves ---------------------------------------------------------------------
-@dataclasses.dataclass(frozen=True)
-class _Curves:
-    """What the model says about each log, and a point model for the stroke figure."""
-
-    force: list[np.ndarray]                         # the central model force per log
-    contributions: list[dict[str, np.ndarray]]      # label -> per-term force per log
-    band: list[tuple[np.ndarray, np.ndarray]] | None
-    model: Model
-    label: str                                       # legend label of the central curve
-
-    def residual(self, problem: Problem, i: int) -> np.ndarray:
-        return self.force[i] - np.asarray(problem.logs[i].force)
-
-    def rms(self, problem: Problem, i: int) -> float:
-        """RMS residual over the samples that carried weight in the run."""
-        r = self.residual(problem, i)[problem.sample_weights[i] > 0]
-        return float(np.sqrt(np.mean(r**2)))
-
-
-def _term_labels(model: Model) -> list[str]:
-    return [f"seal ({n})" if model.term(n).kind == "friction" else n for n in model.force_names]
-
-
-def _fit_curves(run: RunDirectory) -> _Curves:
-    """The fitted curves from fit.json's values; each log's RMS must reproduce fit.json."""
-    problem, result = run.problem, run.result
-    values = {name: p["value"] * problem.par_scale(name)
-              for name, p in result["parameters"].items() if not p.get("fixed")}
-    model = problem.par.with_values(problem.model, values, where=str(run.result_file))
-    nuisances = {name: [entry[key] * factor for entry in result["per_log"]]
-                 for name, (key, factor) in _PER_LOG_NUISANCES.items()
-                 if name in problem.nuisance_names}
-    per_log = problem.per_log(problem.pack(model, nuisances))
-    labels = _term_labels(model)
-    curves = _Curves(force=[p["force"] for p in per_log],
-                     contributions=[dict(zip(labels, p["contributions"].T)) for p in per_log],
-                     band=None, model=model, label=f"fit {model.spec}")
-    for i, entry in enumerate(result["per_log"]):
-        rms = curves.rms(problem, i)
-        if not math.isclose(rms, entry["rms_N"], rel_tol=_REPRODUCE_RTOL):
-            raise InputError(str(run.result_file), f"log {entry['name']}",
-                             f"the fitted model gives an RMS residual of {rms:.6g} N on the "
-                             f"re-read log, fit.json says {entry['rms_N']:.6g} N",
-                             "the log was read or its rig set up differently from the fit "
-                             "(sidecar JSON edited, or reading options / rig overrides the "
-                             "manifest does not record): run the fit again")
-    return curves
-
-
-@dataclasses.dataclass(frozen=True)
-class _Chain:
-    """The posterior chain in physical display units, and the draws kept after burn-in."""
-
-    theta: np.ndarray        # (steps, walkers, size) full theta (integrated entries at their
-                             # stored values)
-    log_prob: np.ndarray     # (steps, walkers)
-    display: np.ndarray      # (steps, walkers, size): model parameters in display units,
-                             # nuisances in theirs (N, fraction)
-    discard: int
-    thin: int
-    stored_kept: np.ndarray | None = None   # (draws, walkers, size) with the integrated
-                                            # entries' conditional draws
-
-    @property
-    def kept(self) -> np.ndarray:
-        if self.stored_kept is not None:
-            return self.stored_kept.reshape(-1, self.theta.shape[-1])
-        return self.theta[self.discard::self.thin].reshape(-1, self.theta.shape[-1])
-
-    @property
-    def kept_log_prob(self) -> np.ndarray:
-        return self.log_prob[self.discard::self.thin].ravel()
-
-
-def _read_chain(run: RunDirectory) -> _Chain:
-    import emcee
-
-    problem, result = run.problem, run.result
-    path = run.path / CHAIN
-    if not path.is_file():
-        raise InputError(str(path), "chain file", "is missing",
-                         "run fitstiff posterior again into this directory")
-    diagnostics = result["diagnostics"]
-    integrated = diagnostics.get("integrated", [])
-    try:
-        backend = emcee.backends.HDFBackend(str(path), name="mcmc", read_only=True)
-        theta, log_prob = backend.get_chain(), backend.get_log_prob()
-        with h5py.File(path, "r") as f:
-            group = f.get("fitstiff")
-            base = np.asarray(group.attrs["theta_start"]) if group is not None else None
-            kept = np.asarray(group[KEPT]) if group is not None and KEPT in group else None
-    except (OSError, KeyError, AttributeError) as exc:
-        raise InputError(str(path), "chain file", f"cannot be read ({exc})",
-                         "run fitstiff posterior again into this directory") from None
-    names = [n for n, p in result["parameters"].items() if not p.get("fixed")]
-    names += list(result["nuisances"])
-    sampled = [n for n in names if n not in integrated]
-    if (names != problem.names or theta.shape[-1] != len(sampled)
-            or (integrated and (base is None or kept is None
-                                or kept.shape[-1] != problem.size))):
-        raise InputError(str(path), "chain",
-                         f"holds {theta.shape[-1]} coordinates ({', '.join(sampled)}), the "
-                         f"rebuilt problem {problem.size} ({', '.join(problem.names)}, of which "
-                         f"{len(integrated)} integrated out)",
-                         "run fitstiff posterior again into this directory")
-    if integrated:
-        full = np.broadcast_to(base, theta.shape[:2] + base.shape).copy()
-        full[..., [problem.names.index(n) for n in sampled]] = theta
-        theta = full
-    physical = jax.jit(jax.vmap(problem.physical))
-    flat = np.asarray(physical(jnp.asarray(theta.reshape(-1, problem.size))))
-    scales = np.concatenate([problem.par.scales(), np.ones(problem.size - problem.par.size)])
-    return _Chain(theta=theta, log_prob=log_prob,
-                  display=(flat / scales).reshape(theta.shape),
-                  discard=int(diagnostics["discard"]), thin=int(diagnostics["thin"]),
-                  stored_kept=kept if integrated else None)
-
-
-def _posterior_curves(run: RunDirectory, chain: _Chain, *, draws: int) -> _Curves:
-    """Median curve, 90 % predictive band and median per-term forces over ``draws`` evenly
-    spaced kept samples; the point model is the most probable kept sample."""
-    problem = run.problem
-    kept = chain.kept
-    pick = np.unique(np.linspace(0, kept.shape[0] - 1, min(draws, kept.shape[0])).round()
-                     .astype(int))
-    per_draw = [problem.per_log(jnp.asarray(kept[k])) for k in pick]
-    best, _ = problem.unpack(jnp.asarray(kept[int(np.argmax(chain.kept_log_prob))]))
-    labels = _term_labels(best)
-    scale = run.result["noise"]["scale"]
-    force, band, contributions = [], [], []
-    for i, log in enumerate(problem.logs):
-        f = np.stack([d[i]["force"] for d in per_draw])
-        centre = np.median(f, axis=0)
-        sd = scale[f"force[{log.name}]"]["sd"]
-        half = _Z90 * np.sqrt(np.var(f, axis=0) + sd**2)
-        force.append(centre)
-        band.append((centre - half, centre + half))
-        terms = np.median(np.stack([d[i]["contributions"] for d in per_draw]), axis=0)
-        contributions.append(dict(zip(labels, terms.T)))
-    return _Curves(force=force, contributions=contributions, band=band, model=best,
-                   label=f"posterior median, {best.spec}")
 
 
 # -- figures --------------------------------------------------------------------------------
@@ -386,13 +91,13 @@ def _used(problem: Problem, i: int) -> np.ndarray | None:
     return None if used.all() else used
 
 
-def _seal(curves: _Curves, i: int) -> np.ndarray | None:
+def _seal(curves: Curves, i: int) -> np.ndarray | None:
     """The model's seal force of log ``i`` (its friction terms), ``None`` without one."""
     seals = [f for label, f in curves.contributions[i].items() if label.startswith("seal (")]
     return np.sum(seals, axis=0) if seals else None
 
 
-def _loop_figure(problem: Problem, curves: _Curves, i: int) -> ReportFigure:
+def _loop_figure(problem: Problem, curves: Curves, i: int) -> ReportFigure:
     log, seg = problem.logs[i], problem.segmentations[i]
     band = curves.band[i] if curves.band else None
     used = _used(problem, i)
@@ -440,7 +145,7 @@ def _loop_figure(problem: Problem, curves: _Curves, i: int) -> ReportFigure:
     return ReportFigure(f"loop_{_file_stem(log.name)}", caption, fig)
 
 
-def _residual_figure(problem: Problem, curves: _Curves, i: int) -> ReportFigure:
+def _residual_figure(problem: Problem, curves: Curves, i: int) -> ReportFigure:
     log, seg = problem.logs[i], problem.segmentations[i]
     used = _used(problem, i)
     views = [("displacement", "region"), ("displacement", "direction")]
@@ -462,7 +167,7 @@ def _residual_figure(problem: Problem, curves: _Curves, i: int) -> ReportFigure:
     return ReportFigure(f"residuals_{_file_stem(log.name)}", caption, fig)
 
 
-def _friction_section(problem: Problem, curves: _Curves) -> _Section | None:
+def _friction_section(problem: Problem, curves: Curves) -> _Section | None:
     """Sliding friction per log and pressure, measured (force minus the model's other terms)
     and modelled; ``None`` when the model has no seal."""
     rows, points = [], []
@@ -518,7 +223,7 @@ def _stroke_figure(problem: Problem, model: Model) -> ReportFigure | str:
     return ReportFigure("chamber_vs_seal", caption, fig)
 
 
-def _model_sections(problem: Problem, curves: _Curves) -> list[_Section]:
+def _model_sections(problem: Problem, curves: Curves) -> list[_Section]:
     """Loops, residuals and chamber against seal: every kind of report has them."""
     n = problem.n_logs
     stroke = _stroke_figure(problem, curves.model)
@@ -571,7 +276,7 @@ def _corner_figure(run: RunDirectory, truth: Mapping[str, float]) -> ReportFigur
     return ReportFigure("corner", caption, fig)
 
 
-def _chain_figures(run: RunDirectory, chain: _Chain) -> list[ReportFigure]:
+def _chain_figures(run: RunDirectory, chain: Chain) -> list[ReportFigure]:
     """Trace (with the burn-in marked) and running autocorrelation time, per parameter."""
     problem = run.problem
     out = []
@@ -602,7 +307,7 @@ def _truth(logs: Sequence[Log]) -> dict[str, float]:
              for log in logs]
     if not files or not all(f is not None and f.is_file() for f in files):
         return {}
-    truths = [_read_json(f) for f in files]
+    truths = [read_json(f) for f in files]
     params = [{k: v["value"] for k, v in t.get("parameters", {}).items()} for t in truths]
     out = {k: v for k, v in params[0].items() if all(p.get(k) == v for p in params)}
     return out | dict(truths[0].get("derived", {}))
@@ -769,7 +474,7 @@ def _value_pm(entry: Mapping[str, object] | None) -> str:
     return f"{_fmt_to(value, stderr)} ± {_fmt_to(stderr, stderr)}"
 
 
-def _log_table(problem: Problem, curves: _Curves, offsets: Sequence[float | None]) -> str:
+def _log_table(problem: Problem, curves: Curves, offsets: Sequence[float | None]) -> str:
     """Per log: size, pressure, the point model's chamber stiffness at its start, fit quality."""
     model = curves.model
     rows = []
@@ -824,7 +529,7 @@ class _Report:
 
 def _fit_report(run: RunDirectory, *, draws: int) -> _Report:
     del draws                          # a fit has no posterior draws
-    curves = _fit_curves(run)
+    curves = fit_curves(run)
     truth = _truth(run.problem.logs)
     offsets = [p["offset_N"] for p in run.result["per_log"]]
     summary = (_fit_tables(run, truth)
@@ -837,8 +542,8 @@ def _fit_report(run: RunDirectory, *, draws: int) -> _Report:
 
 
 def _posterior_report(run: RunDirectory, *, draws: int) -> _Report:
-    chain = _read_chain(run)
-    curves = _posterior_curves(run, chain, draws=draws)
+    chain = read_chain(run)
+    curves = posterior_curves(run, chain, draws=draws)
     problem = run.problem
     truth = _truth(problem.logs)
     rms = math.sqrt(sum(curves.rms(problem, i) ** 2 * len(log)
