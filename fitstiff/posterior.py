@@ -109,7 +109,7 @@ __all__ = [
 DEFAULT_NOISE_MODEL = "ar1"
 #: the files a posterior run writes next to ``posterior.json`` (``fitstiff posterior``)
 INFERENCE_DATA = "posterior.nc"     # ArviZ InferenceData (netCDF)
-PREDICTIVE = "predictive.npz"       # model-force draws for the report
+PREDICTIVE = "predictive.npz"       # model-force draws, their median and spread (the report)
 #: measured 90 % interval coverage (``python -m benchmarks.calibration --datasets 50 --steps
 #: 12000 --noise-models ar1``: benchmarks/results/calibration_50_de.json; the white-noise
 #: figures from an older run, benchmarks/results/calibration_50.json)
@@ -760,8 +760,9 @@ def _derived(problem: Problem, theta) -> dict[str, jnp.ndarray]:
 
 def _predictive(problem: Problem, noise: NoiseModel, layout: Layout, flat: np.ndarray,
                 best: np.ndarray, *, draws: int, rng: np.random.Generator):
-    """Model-force draws per log (thinned to at most ``_PREDICTIVE_POINTS`` samples) and the
-    noise level per series at the most probable sample."""
+    """Model-force draws per log (thinned to at most ``_PREDICTIVE_POINTS`` samples), the
+    median and spread of the draws at every sample, and the noise level per series at the
+    most probable sample."""
 
     def forces(theta):
         return jnp.concatenate([p.force.ravel() for p in problem.predictions(theta)])
@@ -793,6 +794,10 @@ def _predictive(problem: Problem, noise: NoiseModel, layout: Layout, flat: np.nd
         arrays[prefix + "force_N"] = np.asarray(log.force)[::step]
         arrays[prefix + "model_force_draws_N"] = \
             curves[:, offset:offset + n][:, ::step].astype(np.float32)
+        # every sample: the median model force over the draws and their spread (the report's
+        # central curve and, with the noise level, its 90 % predictive band)
+        arrays[prefix + "model_force_median_N"] = np.median(curves[:, offset:offset + n], axis=0)
+        arrays[prefix + "model_force_spread_N"] = np.std(curves[:, offset:offset + n], axis=0)
         arrays[prefix + "noise_sd_N"] = np.asarray(sd)
         offset += length
     arrays["draw_index"] = np.sort(pick)

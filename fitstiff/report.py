@@ -7,8 +7,8 @@ PosixPath('out/fit/report.html')
 **What it draws from.** :func:`fitstiff.run.open_run` re-opens the directory (the result
 file decides the kind: ``posterior.json``, ``fit.json`` or ``diagnosis.json``), re-reads and
 verifies the logs and rebuilds the problem; :mod:`fitstiff.run` recomputes the model's curves
-(a fit's exactly, checked against ``fit.json``; a posterior's median, 90 % predictive band and
-per-term forces from draws of ``chain.h5``). This module is presentation only: figures,
+(a fit's exactly, checked against ``fit.json``; a posterior's median and 90 % predictive band
+from ``predictive.npz``, its per-term forces at the most probable draw of ``chain.h5``). This module is presentation only: figures,
 tables, words and the page. A new kind adds an entry to :data:`~fitstiff.run.RESULT_FILES`
 and a builder to ``_BUILDERS``; the trace and autocorrelation plots use the whole chain, the
 corner plot ``posterior.nc``.

@@ -20,10 +20,11 @@ problem options (:data:`~fitstiff.problem.PROBLEM_OPTIONS`).
 **The curves are recomputed, not stored.** Fit: the parameters of ``fit.json`` and each log's
 offset and initial friction state give the fitted ``theta`` exactly; every log's RMS residual
 must reproduce ``fit.json`` (else the logs were read or the rig set up differently, and it
-says so instead of drawing another fit). Posterior: draws of ``chain.h5`` after the burn-in
-and thinning in ``posterior.json`` give the median curve, a 90 % posterior-predictive band
-(spread of the model force over the draws combined with the estimated noise level) and the
-median per-term forces.
+says so instead of drawing another fit). Posterior: the median and spread of the model-force
+draws that ``fitstiff posterior`` stored in ``predictive.npz`` (at every sample) give the
+median curve and a 90 % posterior-predictive band (the spread combined with the estimated
+noise level); the most probable kept draw of ``chain.h5`` gives the per-term forces. For a
+run without those arrays they are recomputed from draws of ``chain.h5``.
 """
 
 from __future__ import annotations
@@ -46,6 +47,7 @@ from fitstiff.log import Log
 from fitstiff.model import Model, build_model
 from fitstiff.output import sha256_file
 from fitstiff.params import find_param
+from fitstiff.posterior import PREDICTIVE
 from fitstiff.problem import NUISANCES, PROBLEM_OPTIONS, Problem
 
 __all__ = ["MANIFEST", "RESULT_FILES", "Chain", "Curves", "RunDirectory", "fit_curves",
@@ -312,25 +314,60 @@ def read_chain(run: RunDirectory) -> Chain:
 
 
 def posterior_curves(run: RunDirectory, chain: Chain, *, draws: int) -> Curves:
-    """Median curve, 90 % predictive band and median per-term forces over ``draws`` evenly
-    spaced kept samples; the point model is the most probable kept sample."""
+    """Median curve and 90 % predictive band (from the run's ``predictive.npz``: the median and
+    spread of its model-force draws at every sample, with the noise level), the per-term
+    forces of the point model (the most probable kept sample). A run without those arrays
+    (an older one) gets them recomputed from ``draws`` evenly spaced kept samples, with the
+    median per-term forces."""
     problem = run.problem
     kept = chain.kept
-    pick = np.unique(np.linspace(0, kept.shape[0] - 1, min(draws, kept.shape[0])).round()
-                     .astype(int))
-    per_draw = [problem.per_log(jnp.asarray(kept[k])) for k in pick]
-    best, _ = problem.unpack(jnp.asarray(kept[int(np.argmax(chain.kept_log_prob))]))
+    best_theta = jnp.asarray(kept[int(np.argmax(chain.kept_log_prob))])
+    best, _ = problem.unpack(best_theta)
     labels = term_labels(best)
     scale = run.result["noise"]["scale"]
+    stored = _stored_predictive(run)
+    if stored is None:
+        pick = np.unique(np.linspace(0, kept.shape[0] - 1, min(draws, kept.shape[0])).round()
+                         .astype(int))
+        per_draw = [problem.per_log(jnp.asarray(kept[k])) for k in pick]
+        centres = [np.median(np.stack([d[i]["force"] for d in per_draw]), axis=0)
+                   for i in range(problem.n_logs)]
+        spreads = [np.std(np.stack([d[i]["force"] for d in per_draw]), axis=0)
+                   for i in range(problem.n_logs)]
+        terms = [np.median(np.stack([d[i]["contributions"] for d in per_draw]), axis=0)
+                 for i in range(problem.n_logs)]
+    else:
+        centres, spreads = stored
+        terms = [p["contributions"] for p in problem.per_log(best_theta)]
     force, band, contributions = [], [], []
     for i, log in enumerate(problem.logs):
-        f = np.stack([d[i]["force"] for d in per_draw])
-        centre = np.median(f, axis=0)
         sd = scale[f"force[{log.name}]"]["sd"]
-        half = _Z90 * np.sqrt(np.var(f, axis=0) + sd**2)
-        force.append(centre)
-        band.append((centre - half, centre + half))
-        terms = np.median(np.stack([d[i]["contributions"] for d in per_draw]), axis=0)
-        contributions.append(dict(zip(labels, terms.T)))
+        half = _Z90 * np.sqrt(spreads[i] ** 2 + sd**2)
+        force.append(centres[i])
+        band.append((centres[i] - half, centres[i] + half))
+        contributions.append(dict(zip(labels, np.asarray(terms[i]).T)))
     return Curves(force=force, contributions=contributions, band=band, model=best,
-                   label=f"posterior median, {best.spec}")
+                  label=f"posterior median, {best.spec}")
+
+
+def _stored_predictive(run: RunDirectory) -> tuple[list[np.ndarray], list[np.ndarray]] | None:
+    """Per log the median and spread of the model-force draws of ``predictive.npz``, or
+    ``None`` when the file (or those arrays) is not there or does not match the logs."""
+    path = run.path / PREDICTIVE
+    if not path.is_file():
+        return None
+    with np.load(path) as data:
+        names = [str(n) for n in data["log_names"]] if "log_names" in data else []
+        if names != [log.name for log in run.problem.logs]:
+            return None
+        out: tuple[list[np.ndarray], list[np.ndarray]] = ([], [])
+        for i, log in enumerate(run.problem.logs):
+            keys = (f"log{i}_model_force_median_N", f"log{i}_model_force_spread_N")
+            if not all(k in data for k in keys):
+                return None
+            median, spread = (np.asarray(data[k], dtype=float) for k in keys)
+            if median.shape != (len(log),) or spread.shape != (len(log),):
+                return None
+            out[0].append(median)
+            out[1].append(spread)
+    return out

@@ -21,6 +21,7 @@ from fitstiff.cli import main
 from fitstiff.likelihood import (AR1, Gaussian, Layout, LinearNuisances, StudentT,
                                  TurningPoints)
 from fitstiff.log import Log
+from fitstiff.loading import load_log
 from fitstiff.posterior import sample_posterior
 from fitstiff.priors import Priors
 from fitstiff.problem import Problem, ResidualSeries
@@ -238,6 +239,13 @@ def test_cli_posterior_contains_truth_and_writes_every_file(tmp_path, capsys):
     assert curves.shape == (200, draws["log0_force_N"].size)
     rms = np.sqrt(np.mean((np.median(curves, 0) - draws["log0_force_N"]) ** 2))
     assert rms == pytest.approx(float(draws["log0_noise_sd_N"]), rel=0.2)
+    # every sample: the median and spread of the draws (the report's curve and band)
+    median, spread = draws["log0_model_force_median_N"], draws["log0_model_force_spread_N"]
+    assert median.shape == spread.shape == (len(load_log(FIG4)),)
+    thinned = median[::-(-len(median) // 2000)]           # the draws' thinning: ceil(n / 2000)
+    assert thinned.shape == (curves.shape[1],)
+    np.testing.assert_allclose(thinned, np.median(curves.astype(float), 0), atol=1e-3)
+    assert np.all(spread >= 0) and 0 < np.median(spread) < float(draws["log0_noise_sd_N"])
     manifest = json.loads((out / "manifest.json").read_text())
     assert set(manifest["outputs"]) == {"chain.h5", "posterior.nc", "predictive.npz",
                                         "posterior.json"}
