@@ -170,3 +170,48 @@ def test_lugre_on_the_seal_logs_converges_and_its_breakaway_is_flagged():
     values = result.parameters()
     assert values["Fs"]["value"] < values["Fc"]["value"]
     assert 5.5 < values["Fc"]["value"] < 7.0          # the sliding level the Dahl fit finds
+
+
+@pytest.mark.slow
+def test_compare_ranks_pressure_friction_first_and_keeps_every_models_estimates(tmp_path):
+    """Issue 17 item 2 on the O-ring logs: --compare with a Maxwell-slip spec (whose held-out
+    fits crashed on an unordered slip-displacement vector) ranks by held-out RMS, puts
+    chamber+dahl+pressure_friction first (1.08 N against 2.05 N), writes the winner's
+    fit.json and every model's parameters and derived values with their spec arguments."""
+    import json
+
+    from fitstiff.cli import main
+
+    paths = [str(path_of(bar)) for bar in SAMPLES]
+    specs = "chamber+dahl,chamber+dahl+pressure_friction,chamber+maxwell_slip:2"
+    assert main(["fit", *paths, "--format", "zillen_oring", "--compare", specs,
+                 "--out", str(tmp_path)]) == 0
+    compare = json.loads((tmp_path / "compare.json").read_text())
+    assert compare["ranked_by"] == "heldout_rms_N"
+    rows = compare["models"]
+    assert [r["spec"] for r in rows][0] == "chamber+dahl+pressure_friction"
+    assert {r["spec"] for r in rows} == set(specs.split(","))
+    best, plain = rows[0], next(r for r in rows if r["spec"] == "chamber+dahl")
+    assert best["heldout_rms_N"] < 0.7 * plain["heldout_rms_N"]
+    assert all(r["parameters"] and r["derived"] for r in rows)
+    fit = json.loads((tmp_path / "fit.json").read_text())
+    assert fit["model"] == "chamber+dahl+pressure_friction"
+    assert 0.1 < fit["parameters"]["beta"]["value"] < 0.4
+
+
+@pytest.mark.slow
+def test_posterior_that_contradicts_the_fit_says_the_model_is_wrong():
+    """Issue 17 item 1 on the 7 bar log: the converged ar1 posterior sits 6-7 combined
+    standard deviations from least squares (slope 13.9 against 37.6 +- 3.9 N/mm, breakaway
+    7.2 against 7.9 N): it says the model does not describe the log and points to fitstiff
+    diagnose, instead of blaming the sampler."""
+    from fitstiff.posterior import sample_posterior
+
+    post = sample_posterior([load_log(path_of(7), fmt="zillen_oring")], "chamber+dahl", seed=0,
+                            progress=False)
+    assert post.diagnostics.converged, post.diagnostics.reason
+    said = [w for w in post.warnings if "the posterior and least squares disagree" in w]
+    assert any("presliding_slope_N_per_mm" in w for w in said)
+    assert all("not the sampler" in w and "fitstiff diagnose" in w for w in said)
+    assert post.summary("presliding_slope_N_per_mm")["q95"] < 0.6 * post.fit.derived[
+        "presliding_slope_N_per_mm"][0]
