@@ -25,6 +25,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Iterable, Mapping, Sequence
+from typing import Any
 
 import equinox as eqx
 import numpy as np
@@ -63,6 +64,9 @@ _LAG1_CAP = 0.99
 #: steps at a cost change of 2e-6 relative, about 0.02 standard errors)
 _FLAT_STEPS = 10
 _FLAT_SD = 0.1
+#: each fitted nuisance's fit.json ``per_log`` key and its factor to SI (Problem.pack's units)
+PER_LOG_NUISANCES = {"offset": ("offset_N", 1.0), "friction_state0": ("friction_state0", 1.0),
+                     "closing_pressure": ("closing_pressure_bar", 1e5)}
 _RESIDUAL_LIMIT = 1e100  # whitened residuals / Jacobian entries beyond this are refused
 
 
@@ -137,8 +141,22 @@ class FitResult:
                          "unit": self.problem.par_unit(name), "fixed": True}
         return out
 
+    @staticmethod
+    def theta_from_dict(problem: Problem, data: Mapping[str, Any], *,
+                        where: str | None = None) -> jax.Array:
+        """The fitted ``theta`` of ``problem`` from a :meth:`to_dict` (``fit.json``): its free
+        parameters (display units) and each log's fitted nuisances (``per_log``), exactly.
+        ``problem`` must be the fit's (same logs, model and fixed values)."""
+        values = {name: p["value"] * problem.par_scale(name)
+                  for name, p in data["parameters"].items() if not p.get("fixed")}
+        model = problem.par.with_values(problem.model, values, where=where)
+        nuisances = {name: [entry[key] * factor for entry in data["per_log"]]
+                     for name, (key, factor) in PER_LOG_NUISANCES.items()
+                     if name in problem.nuisance_names}
+        return problem.pack(model, nuisances)
+
     def to_dict(self) -> dict[str, object]:
-        """The ``fit.json`` content (DESIGN §5)."""
+        """The ``fit.json`` content (DESIGN §5); :meth:`theta_from_dict` reads it back."""
         n_model = self.n_model_params
         corr = _correlation(self.covariance[:n_model, :n_model])
         return {
@@ -508,17 +526,15 @@ def _summarise(problem: Problem, theta, *, converged: bool, message: str, steps:
                 if model.has("chamber") else 0.0)
         entry = {"name": log.name, "file": str(log.path) if log.path else None,
                  "samples": len(log), "rms_N": math.sqrt(float(res @ res) / max(res.size, 1)),
-                 "offset_N": float(nuis["offset"][i]) if "offset" in nuis else 0.0,
-                 "friction_state0": (float(nuis["friction_state0"][i])
-                                     if "friction_state0" in nuis else None),
+                 "offset_N": 0.0, "friction_state0": None,
                  "chamber_stiffness_N_per_mm": _finite(k_ch),
-                 "closing_pressure_bar": (float(nuis["closing_pressure"][i]) / 1e5
-                                          if "closing_pressure" in nuis else
-                                          (log.rig.supply_pressure / 1e5
-                                           if log.rig.supply_pressure is not None else None)),
+                 "closing_pressure_bar": (log.rig.supply_pressure / 1e5
+                                          if log.rig.supply_pressure is not None else None),
                  "force_noise_N": problem.force_noise[i],
                  "displacement_noise_um": problem.displacement_noise[i] * 1e6,
                  "denoised_displacement": problem.denoised[i]}
+        entry |= {key: float(nuis[name][i]) / factor
+                  for name, (key, factor) in PER_LOG_NUISANCES.items() if name in nuis}
         per_log.append(entry)
     k = n_par
     n = max(n_data, 1)

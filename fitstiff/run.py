@@ -42,6 +42,7 @@ import numpy as np
 from fitstiff._jax import jax, jnp
 from fitstiff.chain import CHAIN, KEPT
 from fitstiff.errors import InputError
+from fitstiff.fitting import FitResult
 from fitstiff.loading import load_logs
 from fitstiff.log import Log
 from fitstiff.model import Model, build_model
@@ -58,9 +59,6 @@ RESULT_FILES: Mapping[str, str] = {"posterior": "posterior.json", "fit": "fit.js
                                    "diagnosis": "diagnosis.json"}
 """Run kind -> the result file that makes a directory one of that kind (checked in order)."""
 _Z90 = 1.6448536269514722       # two-sided 90 % of a standard normal
-_PER_LOG_NUISANCES = {"offset": ("offset_N", 1.0), "friction_state0": ("friction_state0", 1.0),
-                      "closing_pressure": ("closing_pressure_bar", 1e5)}
-"""Nuisance -> its fit.json ``per_log`` key and the factor to the unit of Problem.pack."""
 _REPRODUCE_RTOL = 1e-3          # recomputed per-log RMS against fit.json
 
 
@@ -221,13 +219,9 @@ def term_labels(model: Model) -> list[str]:
 def fit_curves(run: RunDirectory) -> Curves:
     """The fitted curves from fit.json's values; each log's RMS must reproduce fit.json."""
     problem, result = run.problem, run.result
-    values = {name: p["value"] * problem.par_scale(name)
-              for name, p in result["parameters"].items() if not p.get("fixed")}
-    model = problem.par.with_values(problem.model, values, where=str(run.result_file))
-    nuisances = {name: [entry[key] * factor for entry in result["per_log"]]
-                 for name, (key, factor) in _PER_LOG_NUISANCES.items()
-                 if name in problem.nuisance_names}
-    per_log = problem.per_log(problem.pack(model, nuisances))
+    theta = FitResult.theta_from_dict(problem, result, where=str(run.result_file))
+    model, _ = problem.unpack(theta)
+    per_log = problem.per_log(theta)
     labels = term_labels(model)
     curves = Curves(force=[p["force"] for p in per_log],
                      contributions=[dict(zip(labels, p["contributions"].T)) for p in per_log],

@@ -357,3 +357,19 @@ def test_values_at_a_bound_or_beyond_the_data_are_flagged():
         values = np.asarray([{"Fs": fs, "Fc": 18.0}.get(n, 1.0) for n in lugre.par.names])
         said = _implausible(lugre, values, {"breakaway_N": (fs, 0.1)})
         assert any("below the sliding friction" in w for w in said) == flagged
+
+
+def test_fit_json_reads_back_to_the_fitted_theta():
+    """Issue 14: the inverse of FitResult.to_dict lives beside it; fit.json's parameters and
+    per-log nuisances (a fitted closing pressure included) give the fitted theta back."""
+    import json
+
+    from fitstiff.fitting import FitResult
+
+    logs, _, _ = dataset("dahl", 5)
+    result = fit(logs[2:], "chamber+dahl", free=["closing_pressure"])
+    data = json.loads(json.dumps(result.to_dict()))          # through JSON, as on disk
+    theta = FitResult.theta_from_dict(result.problem, data)
+    np.testing.assert_allclose(np.asarray(result.problem.physical(theta)),
+                               np.asarray(result.problem.physical(result.theta)), rtol=1e-9)
+    assert data["per_log"][0]["closing_pressure_bar"] != logs[2].rig.supply_pressure / 1e5
