@@ -16,6 +16,7 @@ import warnings
 from pathlib import Path
 
 from fitstiff import __version__
+from fitstiff._malloc import limit_arenas
 from fitstiff.errors import InputError
 
 __all__ = ["main", "SUBCOMMANDS"]
@@ -91,6 +92,7 @@ def _numeric_message(args: argparse.Namespace, exc: RuntimeWarning) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
+    limit_arenas()                 # before JAX starts its threads (fitstiff._malloc)
     _enable_compilation_cache()
     argv = sys.argv[1:] if argv is None else list(argv)
     parser = build_parser(argv[0] if argv else None)
