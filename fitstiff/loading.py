@@ -59,9 +59,12 @@ _LOOKALIKE = ("\t", ";", ",", "|", " ")      # delimiters recognised in a one-co
 _OVERRIDE_SOURCE = "command-line overrides"
 
 ColumnEntries = Sequence[str | Mapping[str, Any]]
-#: every line a plain decimal (one pass over a whole column; the cell loop finds the culprit)
-_DECIMAL_LINES = re.compile(r"(?:[ \t\r\f\v]*[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)"
-                            r"(?:[eE][+-]?[0-9]+)?[ \t\r\f\v]*\n)*")
+#: one line that is a plain decimal: removing every such line of a whole column leaves nothing
+#: when every cell is one (one pass; the cell loop then finds the culprit). A single
+#: ``fullmatch`` of the repeated group kept a backtracking frame per line: 800 MB for a
+#: million-row column (issue 16)
+_DECIMAL_LINE = re.compile(r"^[ \t\r\f\v]*[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)"
+                           r"(?:[eE][+-]?[0-9]+)?[ \t\r\f\v]*\n", re.MULTILINE)
 
 
 def load_log(path: str | os.PathLike[str], *, columns: ColumnEntries | None = None,
@@ -146,17 +149,51 @@ def _rig(path: Path, layout: Format, overrides: Mapping[str, object]
 
 @dataclasses.dataclass(frozen=True)
 class _Table:
-    """The cells of a log file as text; ``rows[i]`` is on line ``first_line + i``."""
+    """The cells of a log file as text; row ``i`` is on line ``first_line + i``.
+
+    The data lines are kept as lines and split when a column is read (:meth:`cells`), one
+    column at a time: a million-row log held as a list of cell strings per row took about
+    1 GB (issue 16). A file with quotes keeps the rows ``csv`` parsed (``parsed``), which a
+    line split would not reproduce.
+    """
 
     where: str
     header: list[str] | None
-    rows: list[list[str]]
+    lines: list[str]
     first_line: int
     delimiter: str
+    parsed: list[list[str]] | None = None      # csv's rows of a quoted file, else None
+
+    @property
+    def n_rows(self) -> int:
+        return len(self.parsed) if self.parsed is not None else len(self.lines)
 
     @property
     def width(self) -> int:
-        return len(self.header) if self.header is not None else len(self.rows[0])
+        return len(self.header) if self.header is not None else len(self.row(0))
+
+    def row(self, i: int) -> list[str]:
+        """The cells of row ``i``."""
+        if self.parsed is not None:
+            return self.parsed[i]
+        return _split_line(self.lines[i], self.delimiter)
+
+    def row_widths(self):
+        """The number of cells of every row, in order."""
+        if self.parsed is not None:
+            return (len(row) for row in self.parsed)
+        if self.delimiter == WHITESPACE:
+            return (len(line.split()) for line in self.lines)
+        return (line.count(self.delimiter) + 1 for line in self.lines)
+
+    def cells(self, index: int) -> list[str]:
+        """Column ``index`` (0-based) of every row, as written."""
+        if self.parsed is not None:
+            return [row[index] for row in self.parsed]
+        if self.delimiter == WHITESPACE:
+            return [line.split()[index] for line in self.lines]
+        d = self.delimiter
+        return [line.split(d)[index] for line in self.lines]
 
     def line(self, i: int) -> int:
         return self.first_line + i
@@ -165,6 +202,11 @@ class _Table:
         """``column 3 'force_N'`` (``index`` is 0-based)."""
         name = f" '{self.header[index]}'" if self.header is not None else ""
         return f"column {index + 1}{name}"
+
+
+def _split_line(line: str, delimiter: str) -> list[str]:
+    """One unquoted line's cells (what ``csv`` gives for a line without quotes)."""
+    return line.split() if delimiter == WHITESPACE else line.split(delimiter)
 
 
 def _read(path: Path) -> bytes:
@@ -254,8 +296,15 @@ def _table(raw: bytes, *, where: str, delimiter: str | None, header: bool) -> _T
         if not lines:
             raise InputError(where, "file", "has a header row but no data rows",
                              f"give at least {MIN_SAMPLES} data rows")
-    table = _Table(where, names, _split(lines, delimiter, where=where, first_line=first_line),
-                   first_line, delimiter)
+    # without a quote character csv's rows are the lines split at the delimiter: keep the
+    # lines and split a column at a time; a file with quotes, NUL bytes or a line beyond
+    # csv's field limit is parsed by csv as a whole (its rows, or its error message)
+    limit = csv.field_size_limit()
+    whole = delimiter != WHITESPACE and any('"' in line or "\0" in line or len(line) > limit
+                                            for line in lines)
+    table = _Table(where, names, lines, first_line, delimiter,
+                   parsed=_split(lines, delimiter, where=where, first_line=first_line)
+                   if whole else None)
     _check_shape(table, first=first)
     return table
 
@@ -276,10 +325,10 @@ def _check_shape(table: _Table, *, first: str) -> None:
                 raise InputError(table.where, "header", f"columns {first_index + 1} and "
                                  f"{index + 1} are both named '{name}'",
                                  "rename or delete one of them")
-    for i, row in enumerate(table.rows):
-        if len(row) != table.width:
+    for i, width in enumerate(table.row_widths()):
+        if width != table.width:
             raise InputError(table.where, f"line {table.line(i)}",
-                             f"has {len(row)} fields, expected {table.width} (as on line 1)",
+                             f"has {width} fields, expected {table.width} (as on line 1)",
                              f"check the delimiter ({_show(table.delimiter)} used) and fill in "
                              "or remove the missing or extra cells")
 
@@ -366,9 +415,9 @@ def _values(table: _Table, column: _Column, *, no_header: bool) -> np.ndarray:
     A cell is a plain decimal number with an optional exponent (:func:`is_decimal`):
     ``float`` would also take ``1_000``, ``nan``, ``infinity`` or non-ASCII digits.
     """
-    cells = [row[column.index] for row in table.rows]
+    cells = table.cells(column.index)
     i = None
-    if _DECIMAL_LINES.fullmatch("\n".join(cells) + "\n") is None:
+    if _DECIMAL_LINE.sub("", "\n".join(cells) + "\n"):
         i = next((i for i, c in enumerate(cells) if not is_decimal(c)), None)
     if i is not None:
         fix = "make every cell of this column a number"
@@ -425,7 +474,7 @@ def _at(table: _Table, column: _Column, i: int, found: str, fix: str) -> InputEr
 
 
 def _cell(table: _Table, column: _Column, i: int) -> str:
-    return table.rows[i][column.index].strip()
+    return table.row(i)[column.index].strip()
 
 
 def _check_time(table: _Table, column: _Column, time: np.ndarray) -> None:
@@ -482,8 +531,8 @@ def _load(path: Path, layout: Format, overrides: dict[str, object]) -> Log:
     raw = _read(path)
     no_header = bool(layout.no_header)
     table = _table(raw, where=where, delimiter=layout.delimiter, header=not no_header)
-    if len(table.rows) < MIN_SAMPLES:
-        raise InputError(where, "file", f"has {len(table.rows)} data rows",
+    if table.n_rows < MIN_SAMPLES:
+        raise InputError(where, "file", f"has {table.n_rows} data rows",
                          f"give at least {MIN_SAMPLES} samples")
     found = _columns(table, layout.columns)
     rig, vented, sidecar = _rig(path, layout, overrides)
@@ -522,7 +571,7 @@ def _load(path: Path, layout: Format, overrides: dict[str, object]) -> Log:
         "sha256": hashlib.sha256(raw).hexdigest(),
         "delimiter": _show(table.delimiter),
         "header": table.header is not None,
-        "rows": len(table.rows),
+        "rows": table.n_rows,
         "columns": {q: {"column": c.index + 1,
                         "name": None if table.header is None else table.header[c.index],
                         "unit": c.spec.unit.text, "absolute": c.spec.unit.absolute,
