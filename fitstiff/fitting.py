@@ -27,7 +27,6 @@ import math
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
-import equinox as eqx
 import numpy as np
 import optimistix as optx
 
@@ -316,24 +315,20 @@ def fit(logs: Sequence[Log], model: Model | str, *, fix: Mapping[str, float] | I
                        rtol=rtol, atol=atol)
 
 
-class _Solver(eqx.Module):
-    """A compiled least-squares solve for one problem (reused across starts and calls)."""
+def _solver(problem: Problem, solver: str, rtol: float, atol: float, max_steps: int):
+    """The compiled least-squares solve of ``problem``: ``theta0 -> (theta, status, steps,
+    cost)`` (made once per settings and reused across starts and calls)."""
+    method = SOLVERS[solver](rtol, atol)
 
-    problem: Problem = eqx.field(static=True)
-    solver: optx.AbstractLeastSquaresSolver
-    max_steps: int = eqx.field(static=True)
-
-    @eqx.filter_jit
-    def __call__(self, theta0):
-        residuals = materialised_jacobian(self.problem.residuals)
-
-        def fn(theta, _):
-            return residuals(theta)
-
-        sol = optx.least_squares(fn, self.solver, theta0, max_steps=self.max_steps,
-                                 throw=False)
-        r = self.problem.residuals(sol.value)
+    def solve(p: Problem, theta0):
+        residuals = materialised_jacobian(p.residuals)
+        sol = optx.least_squares(lambda theta, _: residuals(theta), method, theta0,
+                                 max_steps=max_steps, throw=False)
+        r = p.residuals(sol.value)
         return sol.value, sol.result, sol.stats["num_steps"], jnp.sum(r**2)
+
+    return problem.cached(("solve", solver, rtol, atol, max_steps),
+                          lambda: problem.jit(solve))
 
 
 def materialised_jacobian(f):
@@ -369,8 +364,7 @@ def fit_problem(problem: Problem, *, solver: str = "lm", starts: int = 1, seed: 
         raise InputError(None, f"--starts {starts}", "must be at least 1", "give 1 or more")
     model0, nuis0 = initial or initial_guess(problem)
     theta0 = problem.pack(model0, nuis0)
-    run = problem.cached(("solve", solver, rtol, atol, max_steps), lambda: _Solver(
-        problem, SOLVERS[solver](rtol, atol), max_steps))
+    run = _solver(problem, solver, rtol, atol, max_steps)
     rng = np.random.default_rng(seed)
     runs = []
     for k in range(starts):
@@ -421,8 +415,7 @@ def _flat_walk(problem: Problem, theta, cost: float, *, solver: str, rtol: float
     their end, its cost and the names of the entries that still moved when the cost fell by
     less than ``_FLAT_SD**2`` residual variances (AR(1)-inflated): converged on the scale of
     the standard errors; else ``theta``, ``cost`` and ``None`` (not converged)."""
-    probe = problem.cached(("solve", solver, rtol, atol, _FLAT_STEPS), lambda: _Solver(
-        problem, SOLVERS[solver](rtol, atol), _FLAT_STEPS))
+    probe = _solver(problem, solver, rtol, atol, _FLAT_STEPS)
     after, _, _, cost_after = probe(theta)
     cost_after = float(cost_after)
     if not np.isfinite(cost_after):
@@ -440,7 +433,7 @@ def _flat_walk(problem: Problem, theta, cost: float, *, solver: str, rtol: float
 
 def _summarise(problem: Problem, theta, *, converged: bool, message: str, steps: int,
                solver: str, starts: Mapping[str, int], notes: Sequence[str] = ()) -> FitResult:
-    ev = problem.cached("summary", lambda: _summary_functions(problem))
+    ev = problem.cached("summary", lambda: problem.jit(_summary_evaluate))
     residuals, jac, eiv, values, dphys, d0, g0, state_cols = (np.asarray(a) for a in ev(theta))
     check_finite(problem.logs, "the fit's whitened residuals and Jacobian", residuals, jac,
                  limit=_RESIDUAL_LIMIT)
@@ -594,41 +587,39 @@ def _identifiability(problem: Problem, jac, dphys, g0, state_cols,
                                   derived_gradient=gradient, derived_names=DERIVED)
 
 
-def _summary_functions(problem: Problem):
-    """One compiled function: residuals, Jacobian, physical values and their Jacobian,
-    derived quantities (first log) and their gradient, all at ``theta``."""
+def _summary_evaluate(problem: Problem, theta):
+    """Residuals, Jacobian, turning-point error columns, physical values and their Jacobian,
+    derived quantities (first log) and their gradient, and the initial-state columns, all at
+    ``theta`` (compiled by :meth:`~fitstiff.problem.Problem.jit`)."""
 
     def derived_vec(th):
         model, _ = problem.unpack(th)
         d = derived_quantities(model, problem.drives[0])
         return jnp.stack([d[k] for k in DERIVED])
 
-    @jax.jit
-    def evaluate(theta):
-        jac = jax.jacfwd(problem.residuals)(theta)
-        # errors in variables at the turning points: C = B^T J (one VJP per parameter),
-        # B = d(residuals)/d(displacement), scaled by the displacement noise at reversals
-        _, vjp = jax.vjp(lambda xs: problem.residuals(theta, xs), problem.displacements())
-        scales = problem.reversal_noise()
-        eiv = jax.vmap(lambda col: jnp.concatenate(
-            [(c * s).ravel() for c, s in zip(vjp(col)[0], scales)]), in_axes=1, out_axes=1)(jac)
-        return (problem.residuals(theta), jac, eiv, problem.physical(theta),
-                jax.jacfwd(problem.physical)(theta), derived_vec(theta),
-                jax.jacfwd(derived_vec)(theta), state_columns(theta))
+    jac = jax.jacfwd(problem.residuals)(theta)
+    # errors in variables at the turning points: C = B^T J (one VJP per parameter),
+    # B = d(residuals)/d(displacement), scaled by the displacement noise at reversals
+    _, vjp = jax.vjp(lambda xs: problem.residuals(theta, xs), problem.displacements())
+    scales = problem.reversal_noise()
+    eiv = jax.vmap(lambda col: jnp.concatenate(
+        [(c * s).ravel() for c, s in zip(vjp(col)[0], scales)]), in_axes=1, out_axes=1)(jac)
+    return (problem.residuals(theta), jac, eiv, problem.physical(theta),
+            jax.jacfwd(problem.physical)(theta), derived_vec(theta),
+            jax.jacfwd(derived_vec)(theta), _state_columns(problem, theta))
 
-    def state_columns(theta):
-        # d(residuals)/d(initial friction state) in physical coordinates, summed over the
-        # logs (their rows are disjoint): the tanh transform flattens at saturation, where a
-        # fit without reversals ends, and hides the state's trade-off with the seal
-        model, nuisances = problem.unpack(theta)
-        if "friction_state0" not in nuisances:
-            return jnp.zeros(0)
-        z = nuisances["friction_state0"]
-        _, column = jax.jvp(lambda zz: problem.model_residuals(
-            model, {**nuisances, "friction_state0": zz}), (z,), (jnp.ones_like(z),))
-        return column
 
-    return evaluate
+def _state_columns(problem: Problem, theta):
+    """d(residuals)/d(initial friction state) in physical coordinates, summed over the logs
+    (their rows are disjoint): the tanh transform flattens at saturation, where a fit
+    without reversals ends, and hides the state's trade-off with the seal."""
+    model, nuisances = problem.unpack(theta)
+    if "friction_state0" not in nuisances:
+        return jnp.zeros(0)
+    z = nuisances["friction_state0"]
+    _, column = jax.jvp(lambda zz: problem.model_residuals(
+        model, {**nuisances, "friction_state0": zz}), (z,), (jnp.ones_like(z),))
+    return column
 
 
 def _implausible(problem: Problem, values: np.ndarray,

@@ -190,18 +190,19 @@ class TurningPoints:
         sizes = [len(rows) for rows, _ in where]
         if not sum(sizes):
             return cls(np.zeros((layout.size, 0)), np.zeros(0, dtype=int))
-        base = problem.displacements()
 
-        def residuals(delta):
-            moved, start = [], 0
-            for x, s, (rows, cols), k in zip(base, scales, where, sizes):
-                bump = jnp.zeros(x.shape).at[rows, cols].set(delta[start:start + k]
-                                                             * s[rows, cols])
-                moved.append(x + bump)
-                start += k
-            return problem.residuals(theta, tuple(moved))
+        def jacobian(p: Problem, delta):
+            def residuals(delta):
+                moved, start = [], 0
+                for x, s, (rows, cols), k in zip(p.displacements(), scales, where, sizes):
+                    bump = jnp.zeros(x.shape).at[rows, cols].set(delta[start:start + k]
+                                                                 * s[rows, cols])
+                    moved.append(x + bump)
+                    start += k
+                return p.residuals(theta, tuple(moved))
+            return jax.jacfwd(residuals)(delta)
 
-        columns = np.array(jax.jit(jax.jacfwd(residuals))(jnp.zeros(sum(sizes))))
+        columns = np.array(problem.jit(jacobian)(jnp.zeros(sum(sizes))))
         force = np.array([e.channel == "force" for e in layout.series])[layout.segment]
         columns[~force] = 0.0
         columns = columns[:, np.any(columns != 0.0, axis=0)]
@@ -233,7 +234,7 @@ class LinearNuisances:
         theta = np.asarray(theta, dtype=float)
         if not index.size:
             return cls(np.zeros((layout.size, 0)), np.zeros(0, dtype=int), index)
-        residuals = problem.cached("posterior_residuals", lambda: jax.jit(problem.residuals))
+        residuals = problem.cached("posterior_residuals", lambda: problem.jit(Problem.residuals))
         base = np.asarray(residuals(jnp.asarray(theta)))
         columns = np.empty((base.size, index.size))
         for j, i in enumerate(index):

@@ -594,8 +594,9 @@ class LogPosterior:
         # two compiled calls, not one: XLA's CPU backend fused the likelihood into the scan's
         # output at twice the cost of the two apart (four logs of 35 000 samples, 16 rows:
         # 24 ms fused, 5.9 + 5.1 ms apart)
-        residuals = problem.cached(("posterior_residual_rows", batch, coordinates),
-                                   lambda: jax.jit(jax.vmap(lambda c: problem.residuals(full(c)))))
+        residuals = problem.cached(
+            ("posterior_residual_rows", batch, coordinates),
+            lambda: problem.jit(lambda p, rows: jax.vmap(lambda c: p.residuals(full(c)))(rows)))
         rest = problem.cached(("log_posterior_given", noise, priors.key, batch, coordinates),
                               lambda: jax.jit(jax.vmap(given)))
         self._fn = lambda rows: rest(residuals(rows), rows)
@@ -669,8 +670,9 @@ def _collect(problem: Problem, sampler: emcee.EnsembleSampler, check: Check, *,
     thetas = flat.reshape(coords.shape[:2] + flat.shape[-1:])
     physical = problem.cached("posterior_physical", lambda: jax.jit(jax.vmap(problem.physical)))
     samples = _batched(physical, flat, batch=_DERIVED_BATCH).reshape(thetas.shape)
-    derived_fn = problem.cached("posterior_derived", lambda: jax.jit(jax.vmap(
-        lambda th: jnp.stack([_derived(problem, th)[k] for k in DERIVED]))))
+    derived_fn = problem.cached("posterior_derived", lambda: problem.jit(
+        lambda p, rows: jax.vmap(lambda th: jnp.stack([_derived(p, th)[k] for k in DERIVED]))(
+            rows)))
     derived_values = _batched(derived_fn, flat, batch=_DERIVED_BATCH)
     derived = {k: derived_values[:, i].reshape(thetas.shape[:2]) for i, k in enumerate(DERIVED)}
     tau = dict(zip(coordinates.names(problem), map(float, check.tau)))
@@ -737,11 +739,13 @@ def _full_thetas(problem: Problem, noise: NoiseModel, layout: Layout,
     chi2 = rng.chisquare(np.maximum(dof, 1), size=(coords.shape[0], dof.size))
     d = full.shape[1]
 
-    def draw(row):
-        theta, z, c = row[:d], row[d:d + columns], row[d + columns:]
-        return noise.linear_draws(problem.residuals(theta), layout, z, c)
+    def draws(p: Problem, rows):
+        def draw(row):
+            theta, z, c = row[:d], row[d:d + columns], row[d + columns:]
+            return noise.linear_draws(p.residuals(theta), layout, z, c)
+        return jax.vmap(draw)(rows)
 
-    fn = problem.cached(("posterior_linear_draws", noise), lambda: jax.jit(jax.vmap(draw)))
+    fn = problem.cached(("posterior_linear_draws", noise), lambda: problem.jit(draws))
     corrections = _batched(fn, np.concatenate([full, normal, chi2], axis=1),
                            batch=_RESIDUAL_BATCH)
     full[:, linear.index] += corrections
@@ -749,7 +753,7 @@ def _full_thetas(problem: Problem, noise: NoiseModel, layout: Layout,
 
 
 def _residuals(problem: Problem, theta: np.ndarray) -> np.ndarray:
-    fn = problem.cached("posterior_residuals", lambda: jax.jit(problem.residuals))
+    fn = problem.cached("posterior_residuals", lambda: problem.jit(Problem.residuals))
     return np.asarray(fn(jnp.asarray(theta)))
 
 
@@ -764,10 +768,11 @@ def _predictive(problem: Problem, noise: NoiseModel, layout: Layout, flat: np.nd
     median and spread of the draws at every sample, and the noise level per series at the
     most probable sample."""
 
-    def forces(theta):
-        return jnp.concatenate([p.force.ravel() for p in problem.predictions(theta)])
+    def forces(p: Problem, rows):
+        return jax.vmap(lambda theta: jnp.concatenate(
+            [pred.force.ravel() for pred in p.predictions(theta)]))(rows)
 
-    fn = problem.cached("posterior_forces", lambda: jax.jit(jax.vmap(forces)))
+    fn = problem.cached("posterior_forces", lambda: problem.jit(forces))
     pick = rng.choice(flat.shape[0], size=min(draws, flat.shape[0]), replace=False)
     curves = _batched(fn, flat[np.sort(pick)], batch=_PREDICTIVE_BATCH)
     whitened = np.asarray(noise.series_scale(jnp.asarray(_residuals(problem, best)), layout))

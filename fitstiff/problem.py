@@ -19,6 +19,7 @@ compile time does not grow with the number of logs; padded samples carry zero we
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import math
 from collections.abc import Iterable, Mapping, Sequence
@@ -70,11 +71,11 @@ class ResidualSeries(NamedTuple):
     mask: np.ndarray  # (len,) bool: samples with weight > 0 (the others are exactly 0)
 
 
-@dataclasses.dataclass(frozen=True)
-class _Group:
-    """Logs with one static structure, padded and stacked for one vmap-ed scan."""
+class _Group(eqx.Module):
+    """Logs with one static structure, padded and stacked for one vmap-ed scan (a pytree:
+    :meth:`Problem.jit` passes its arrays to compiled functions as arguments)."""
 
-    index: tuple[int, ...]       # positions of the logs in Problem.logs
+    index: tuple[int, ...] = eqx.field(static=True)   # positions of the logs in Problem.logs
     drive: Drive                 # stacked: leaves have a leading log axis
     force: jnp.ndarray           # (L, N) measured force
     weight: jnp.ndarray          # (L, N) 1/sigma_F * sample weight (0 on padding)
@@ -170,6 +171,7 @@ class Problem:
                                for log, seg in zip(self.logs, self.segmentations)]
         self._groups = self._build_groups()
         self._compiled: dict[object, object] = {}
+        self._reversal_noise: tuple | None = None
         self.n_data = int(sum(int(np.count_nonzero(np.asarray(g.weight))) + sum(
             int(np.count_nonzero(np.asarray(w))) for w in g.pressure_weight if w is not None)
             for g in self._groups))
@@ -349,7 +351,10 @@ class Problem:
         samples, 0 elsewhere - the local fit's (:func:`~fitstiff.denoise.turning_points`)
         for a denoised log, else the displacement noise. An error in a turning point shifts
         the whole branch after it; this is the errors-in-variables part of the covariance
-        (:mod:`fitstiff.fitting`) and of the posterior's likelihood."""
+        (:mod:`fitstiff.fitting`) and of the posterior's likelihood. Computed once, from the
+        concrete drives (a :meth:`jit` function receives them as arguments)."""
+        if self._reversal_noise is not None:
+            return self._reversal_noise
         out = []
         for g in self._groups:
             rows = []
@@ -366,7 +371,8 @@ class Problem:
                     row[reversal_samples(x, seg.reversals)] = self.displacement_noise[i]
                 rows.append(row)
             out.append(jnp.asarray(np.stack(rows)))
-        return tuple(out)
+        self._reversal_noise = tuple(out)
+        return self._reversal_noise
 
     def _group_drive(self, group: _Group, nuisances, displacement=None):
         idx = jnp.asarray(group.index)
@@ -422,7 +428,8 @@ class Problem:
     def per_log(self, theta) -> list[dict[str, np.ndarray]]:
         """Per log (in order): predicted force, per-term forces and pressures, unpadded."""
         out: list[dict[str, np.ndarray] | None] = [None] * self.n_logs
-        predictions = self.cached("predictions", lambda: jax.jit(self.predictions))
+        predictions = self.cached("predictions",
+                                  lambda: self.jit(lambda p, th: p.predictions(th)))
         for group, pred in zip(self._groups, predictions(theta)):
             for row, i in enumerate(group.index):
                 n = len(self.logs[i])
@@ -464,6 +471,28 @@ class Problem:
         if key not in self._compiled:
             self._compiled[key] = factory()
         return self._compiled[key]
+
+    def jit(self, fn):
+        """``fn(problem, *args)`` compiled (``equinox.filter_jit``) as ``f(*args)``, with
+        this problem's data arrays (the stacked drives, measurements and weights, the
+        per-log drives) passed to the executable as arguments.
+
+        A function that closes over the problem instead compiles its arrays into the
+        executable as constants: a copy per compiled function that XLA copies again while
+        compiling (``benchmarks/fit_memory.py``: about 600 MB more peak for the solve of
+        a 1 M-sample log). ``fn`` receives a copy of the problem whose arrays are the
+        traced arguments; it must reach the data only through it.
+        """
+        compiled = eqx.filter_jit(lambda arrays, *args: fn(self._with_arrays(arrays), *args))
+        return lambda *args: compiled(self._arrays(), *args)
+
+    def _arrays(self):
+        return self._groups, self.drives, self.reversal_noise()
+
+    def _with_arrays(self, arrays) -> Problem:
+        bound = copy.copy(self)
+        bound._groups, bound.drives, bound._reversal_noise = arrays
+        return bound
 
 
 def _length_buckets(index: Sequence[int], lengths: Sequence[int]) -> list[list[int]]:

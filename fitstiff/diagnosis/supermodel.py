@@ -20,10 +20,10 @@ predictions) all call the same compiled functions:
 from __future__ import annotations
 
 import dataclasses
+import functools
 import threading
 from collections.abc import Mapping, Sequence
 
-import equinox as eqx
 import numpy as np
 
 from fitstiff._jax import jax, jnp
@@ -188,11 +188,11 @@ class SuperProblem:
         self._lengths = {per_log,
                          int(self.model_mask(self.baseline_terms).sum()) + largest
                          + (self.size - self.n_model)}
-        self._solvers: dict[int, _Solve] = {}
+        self._solvers: dict[int, object] = {}
         self._lock = threading.Lock()
-        self._jac = jax.jit(self._jacobian_impl)
-        self._forces = jax.jit(self._forces_impl)
-        self._column = jax.jit(self._column_impl)
+        self._jac = self.problem.jit(functools.partial(_jacobian, n_model=self.n_model))
+        self._forces = self.problem.jit(_forces)
+        self._column = self.problem.jit(_column)
 
     # -- masks ------------------------------------------------------------------------------
     def model_mask(self, terms: Sequence[str]) -> np.ndarray:
@@ -289,59 +289,54 @@ class SuperProblem:
         ok = int(result) == CONVERGED and bool(np.isfinite(cost))
         return np.asarray(theta)[:self.size], ok, int(steps), float(cost)
 
-    def _solver(self, size: int) -> _Solve:
+    def _solver(self, size: int):
         if size not in self._solvers:
-            self._solvers[size] = _Solve(self.problem)
+            self._solvers[size] = self.problem.jit(_masked_solve)
         return self._solvers[size]
-
-    def _jacobian_impl(self, x, theta):
-        def f(x, nuis):
-            th = jnp.concatenate([theta[:self.n_model], nuis])
-            return self.problem.residuals_physical(x, th)
-
-        nuis = theta[self.n_model:]
-        r = f(x, nuis)
-        jx, jn = jax.jacfwd(f, argnums=(0, 1))(x, nuis)
-        return r, jnp.concatenate([jx, jn], axis=1)
 
     def jacobian(self, x, theta) -> tuple[np.ndarray, np.ndarray]:
         """Residuals and ``d residuals / d (x, nuisances)`` at physical model values ``x``."""
         r, j = self._jac(jnp.asarray(x), jnp.asarray(theta))
         return np.asarray(r), np.asarray(j)
 
-    def _column_impl(self, x, theta, tangent):
-        return jax.jvp(lambda x: self.problem.residuals_physical(x, theta), (x,), (tangent,))
-
     def column(self, x, theta, tangent) -> tuple[np.ndarray, np.ndarray]:
         """Residuals and their derivative along one physical ``tangent`` (one JVP)."""
         r, c = self._column(jnp.asarray(x), jnp.asarray(theta), jnp.asarray(tangent))
         return np.asarray(r), np.asarray(c)
-
-    def _forces_impl(self, x, theta):
-        p = self.problem
-        model = p.par.physical_to_model(x, p.model)
-        return [pred.force for pred in p.model_predictions(model, p.nuisances(theta))]
 
     def forces(self, x, theta) -> list[np.ndarray]:
         """Predicted force (N) of every log, unpadded, in log order."""
         return self.problem.unpad(self._forces(jnp.asarray(x), jnp.asarray(theta)))
 
 
-class _Solve(eqx.Module):
-    """One compiled masked least-squares solve for a super-problem (per gathered length)."""
+def _jacobian(p: Problem, x, theta, *, n_model: int):
+    """Residuals and ``d residuals / d (x, nuisances)`` at physical model values ``x``."""
+    def f(x, nuis):
+        return p.residuals_physical(x, jnp.concatenate([theta[:n_model], nuis]))
 
-    problem: Problem = eqx.field(static=True)
+    nuis = theta[n_model:]
+    jx, jn = jax.jacfwd(f, argnums=(0, 1))(x, nuis)
+    return f(x, nuis), jnp.concatenate([jx, jn], axis=1)
 
-    @eqx.filter_jit
-    def __call__(self, theta_pad, index, hold, free_model, weights, max_steps):
-        p = self.problem
-        n_model = p.par.size
 
-        def residuals(z):
-            theta = theta_pad.at[index].set(z)[:-1]
-            x = jnp.where(free_model, p.par.physical(theta[:n_model]), hold)
-            return p.residuals_physical(x, theta) * weights
+def _column(p: Problem, x, theta, tangent):
+    return jax.jvp(lambda x: p.residuals_physical(x, theta), (x,), (tangent,))
 
-        sol = levenberg_marquardt(residuals, theta_pad[index], rtol=_RTOL, atol=_RTOL,
-                                  max_steps=max_steps)
-        return theta_pad.at[index].set(sol.value), sol.status, sol.steps, sol.cost
+
+def _forces(p: Problem, x, theta):
+    model = p.par.physical_to_model(x, p.model)
+    return [pred.force for pred in p.model_predictions(model, p.nuisances(theta))]
+
+
+def _masked_solve(p: Problem, theta_pad, index, hold, free_model, weights, max_steps):
+    """One masked least-squares solve of a super-problem (compiled per gathered length)."""
+    n_model = p.par.size
+
+    def residuals(z):
+        theta = theta_pad.at[index].set(z)[:-1]
+        x = jnp.where(free_model, p.par.physical(theta[:n_model]), hold)
+        return p.residuals_physical(x, theta) * weights
+
+    sol = levenberg_marquardt(residuals, theta_pad[index], rtol=_RTOL, atol=_RTOL,
+                              max_steps=max_steps)
+    return theta_pad.at[index].set(sol.value), sol.status, sol.steps, sol.cost
