@@ -1,6 +1,7 @@
 """Fit speed: fitstiff against the reference a user would otherwise write, in the same run.
 
-One 4 000-sample ``chamber+dahl`` log (paper cylinder, 6 bar, 1 kHz, realistic noise).
+One 4 000-sample ``chamber+dahl`` log (paper cylinder, 6 bar, 1.1 kHz, realistic noise;
+:func:`fitstiff._testing.speed.make_log`).
 
 - **fitstiff warm**: ``fit_problem`` on a prepared problem whose solver is already compiled
   (data-driven start, Levenberg-Marquardt with exact Jacobians, covariance and summary).
@@ -28,24 +29,10 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import least_squares
 
+from fitstiff._testing.speed import make_log
 from fitstiff.fitting import fit_problem, initial_guess
-from fitstiff.log import Rig
 from fitstiff.problem import Problem
-from fitstiff.programs import TriangleCycles
-from fitstiff.simulate import Noise, simulate, write_log
-
-RIG = Rig.from_mapping({"bore_mm": 32, "stroke_mm": 700, "start_position_mm": 350,
-                        "supply_bar": 6})
-
-
-def make_log():
-    program = TriangleCycles(rate_mm_s=2.0, amplitudes_mm=(0.05, 0.1, 0.2, 0.5, 1.0),
-                             cycles=1)
-    sim = simulate("chamber+dahl", program, rig=RIG, params={"sigma0": 40, "Fc": 18, "n": 1.3},
-                   noise=Noise(force_N=0.2, displacement_um=1.0, pressure_mbar=2.0),
-                   seed=1, name="bench", rate_hz=1100.0)   # 4 070 samples
-    log = sim.log.slice(0, 4000)
-    return log
+from fitstiff.simulate import write_log
 
 
 def reference_residuals(p, x, force, p_a, p_b, rig, sigma_f, sigma_p):

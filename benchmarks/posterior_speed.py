@@ -1,6 +1,6 @@
 """Posterior speed: the vectorised JAX log-posterior against a NumPy one, in the same run.
 
-The 4 000-sample ``chamber+dahl`` log of :mod:`benchmarks.fit_speed` (paper cylinder, 6 bar,
+The 4 000-sample ``chamber+dahl`` log of :mod:`fitstiff._testing.speed` (paper cylinder, 6 bar,
 realistic noise), fitted by least squares, then:
 
 - **fitstiff**: :class:`fitstiff.posterior.LogPosterior` (default AR(1) noise model, default
@@ -29,7 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.fit_speed import make_log, reference_residuals
+from benchmarks.fit_speed import reference_residuals
+from fitstiff._testing.speed import make_log
 from fitstiff.fitting import fit_problem
 from fitstiff.posterior import log_posterior, sample_posterior
 from fitstiff.problem import Problem

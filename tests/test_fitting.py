@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from conftest import REALDATA
 
-from benchmarks.recovery import dataset, score
+from fitstiff._testing.recovery import dataset
 from fitstiff.cli import main
 from fitstiff.comparison import compare
 from fitstiff.fitting import fit
@@ -22,12 +22,14 @@ from fitstiff.simulate import Noise, simulate, write_log
 def test_recovers_seal_and_chamber_from_four_logs(friction, seed):
     """Paper-like data (0.2 N, 1 um, 2 mbar noise; 0-6 bar): slope and breakaway within 2 %
     and 3 standard errors, n within 0.05, from the data-driven default start."""
-    row = score(friction, seed)
-    assert row["converged"]
-    assert abs(row["n_fit"] - row["n_true"]) <= 0.05
+    logs, derived, n_true = dataset(friction, seed)
+    result = fit(logs, f"chamber+{friction}")
+    assert result.converged
+    assert abs(result.value("n") - n_true) <= 0.05
     for key in ("presliding_slope_N_per_mm", "breakaway_N"):
-        assert abs(row[key]["rel_error"]) <= 0.02, (key, row[key])
-        assert abs(row[key]["z"]) <= 3, (key, row[key])
+        value, stderr = result.derived[key]
+        assert abs(value / derived[key] - 1) <= 0.02, (key, value, derived[key])
+        assert abs(value - derived[key]) <= 3 * stderr, (key, value, stderr, derived[key])
 
 
 def _single(noise_um: float, seed: int):

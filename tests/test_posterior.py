@@ -16,7 +16,6 @@ import numpy as np
 import pytest
 from conftest import REPO, polyline
 
-from benchmarks import calibration
 from fitstiff.cli import main
 from fitstiff.likelihood import (AR1, Gaussian, Layout, LinearNuisances, StudentT,
                                  TurningPoints)
@@ -330,6 +329,8 @@ def test_killed_run_resumes_to_the_uninterrupted_chain(tmp_path):
 def test_calibration_benchmark_runs_small():
     """The calibration machinery on three datasets (the coverage itself needs >= 50: see
     benchmarks/calibration.py)."""
+    from benchmarks import calibration
+
     rows = [calibration.score(seed, noise_models=("ar1",), walkers=16, steps=100,
                               tau_multiple=50) for seed in range(3)]
     for row in rows:
@@ -361,8 +362,8 @@ def test_default_posterior_benchmark_runs_small(tmp_path):
 def test_speed_benchmark_reference_is_the_same_log_posterior():
     """benchmarks/posterior_speed.py compares against a NumPy log-posterior; it must be the
     same function (up to one constant), or the speed-up means nothing."""
-    from benchmarks.fit_speed import make_log
     from benchmarks.posterior_speed import reference_log_posterior
+    from fitstiff._testing.speed import make_log
     from fitstiff.fitting import fit_problem
     from fitstiff.posterior import log_posterior
 

@@ -1,5 +1,6 @@
 """The withheld-effect benchmark (benchmarks/withheld.py, issue 12): its independent rig
-simulator agrees with fitstiff's, effects enter with the right sign and size, the scores are
+simulator (fitstiff/_testing/rig_sim.py) agrees with fitstiff's, effects enter with the right
+sign and size, its datasets (fitstiff/_testing/withheld.py) are reproducible, the scores are
 computed right, and a small run goes through the diagnosis."""
 
 from __future__ import annotations
@@ -9,8 +10,9 @@ import math
 import numpy as np
 import pytest
 
-from benchmarks import rig_sim as rs
 from benchmarks import withheld as wh
+from fitstiff._testing import rig_sim as rs
+from fitstiff._testing import withheld as datasets
 from fitstiff.log import Rig
 from fitstiff.programs import TriangleCycles
 from fitstiff.simulate import Noise, simulate
@@ -173,12 +175,12 @@ def test_dataset_ids_interleave_families_and_are_reproducible():
     ids = wh.dataset_ids(seeds=2, nulls=4, pair_seeds=1)
     assert len(ids) == len(set(ids)) == 13 * 2 + 4 + 3 * 2 + 8 + 2 * 2
     assert {i.split("/")[0] for i in ids[: len(ids) // 2 + 8]} == set(wh.FAMILIES)
-    a, ta = wh.make_dataset("single/viscous/3", rate_scale=0.2)
-    b, tb = wh.make_dataset("single/viscous/3", rate_scale=0.2)
+    a, ta = datasets.make_dataset("single/viscous/3", rate_scale=0.2)
+    b, tb = datasets.make_dataset("single/viscous/3", rate_scale=0.2)
     assert ta["sizes"] == tb["sizes"] and np.array_equal(a[0].force, b[0].force)
-    low, high = wh.SIZES["viscous"]
+    low, high = datasets.SIZES["viscous"]
     assert low <= ta["sizes"]["viscous"] <= high
-    _, miss = wh.make_dataset("missing/pressure_friction/0", rate_scale=0.2)
+    _, miss = datasets.make_dataset("missing/pressure_friction/0", rate_scale=0.2)
     assert len({round(p["supply_bar"], 9) for p in miss["logs"]}) == 1
     assert all(0 < p["x0_mm"] < 700 for p in miss["logs"])
     assert not math.isnan(ta["base"]["Fc_N"])

@@ -1,8 +1,9 @@
-"""An independent NumPy rig simulator for the withheld-effect benchmark (issue 12).
+"""An independent NumPy rig simulator for the withheld-effect datasets (issue 12).
 
-The data of ``benchmarks/withheld.py`` must not come from the code path the fit uses: this
-module shares no physics code with :mod:`fitstiff` (it only builds :class:`fitstiff.log.Log`
-objects at the end). It differs from :func:`fitstiff.simulate.simulate` on purpose:
+The data of the withheld-effect benchmark (:mod:`fitstiff._testing.withheld`, run by
+``benchmarks/withheld.py``) must not come from the code path the fit uses: this module shares
+no physics code with :mod:`fitstiff` (it only builds :class:`fitstiff.log.Log` objects at the
+end). It differs from :func:`fitstiff.simulate.simulate` on purpose:
 
 - the displacement program is rendered on a grid ``substeps`` (default 15) times finer than
   the logged samples, its corners rounded by a short Hann smoothing (finite accelerations, as
@@ -370,7 +371,7 @@ def simulate_log(program: Program, *, base: Base, effects: Mapping[str, Mapping[
                  if base.chamber and noise.log_pressures else {})
     log = Log(name=name, displacement=disp, force=force, time=t_log, rig=rig,
               vented=frozenset() if base.chamber else frozenset({"a", "b"}),
-              source={"simulated": "benchmarks/rig_sim.py"}, **pressures)
+              source={"simulated": "fitstiff/_testing/rig_sim.py"}, **pressures)
     return log, truth
 
 
