@@ -61,7 +61,9 @@ step, giving the same chain as an uninterrupted run.
 ``mean``, ``std``) of the parameters and of the derived quantities of DESIGN §1.2 (computed by a
 ``vmap``-ed JAX function over the thinned samples, at the first log's operating point as in
 fit.json), draws of the model force for the report, ``posterior.json`` content
-(:meth:`Posterior.to_dict`) and an ArviZ ``InferenceData`` (:meth:`Posterior.to_inference_data`).
+(:meth:`Posterior.to_dict`; :meth:`Posterior.from_dict` reads it back as a
+:class:`PosteriorRecord`, the summaries without the samples) and an ArviZ ``InferenceData``
+(:meth:`Posterior.to_inference_data`).
 """
 
 from __future__ import annotations
@@ -72,6 +74,7 @@ import os
 import sys
 import warnings
 from collections.abc import Callable, Iterable, Mapping, Sequence
+from typing import Any
 
 import emcee
 import numpy as np
@@ -84,7 +87,8 @@ from fitstiff.derived import DERIVED, derived_quantities, split_unit
 from fitstiff.errors import InputError
 from fitstiff.fitting import FitResult, fit_problem
 from fitstiff.guards import nonfinite_error
-from fitstiff.likelihood import Layout, LinearNuisances, NoiseModel, TurningPoints
+from fitstiff.likelihood import (Layout, LinearNuisances, NoiseModel, TurningPoints,
+                                 noise_from_dict)
 from fitstiff.log import Log
 from fitstiff.model import Model
 from fitstiff.priors import Prior, Priors
@@ -102,6 +106,7 @@ __all__ = [
     "LogPosterior",
     "MOVES",
     "Posterior",
+    "PosteriorRecord",
     "log_posterior",
     "sample_posterior",
 ]
@@ -137,11 +142,14 @@ _QUANTILES = (("q05", 5.0), ("q50", 50.0), ("q95", 95.0))
 # -- results --------------------------------------------------------------------------------
 @dataclasses.dataclass(frozen=True)
 class Diagnostics:
-    """Sampler diagnostics (``posterior.json`` ``diagnostics``).
+    """Sampler diagnostics (``posterior.json`` ``diagnostics``; :meth:`from_dict` reads them
+    back).
 
     Attributes:
-        acceptance_fraction: per walker.
-        autocorr_time: integrated autocorrelation time (steps) per sampled coordinate.
+        acceptance_fraction: the fraction of accepted proposals, mean over the walkers.
+        acceptance_fraction_min: the lowest walker's (a stuck walker shows here).
+        autocorr_time: integrated autocorrelation time (steps) per sampled coordinate (NaN
+            where not estimated: a coordinate that never moved).
         effective_samples: walkers x kept steps / autocorrelation time, per name.
         converged, reason: the verdict of the convergence rules and why.
         steps, walkers, discard, thin: chain length, ensemble size, burn-in and thinning used.
@@ -152,7 +160,8 @@ class Diagnostics:
         moves: the emcee proposal (a key of :data:`MOVES`).
     """
 
-    acceptance_fraction: np.ndarray
+    acceptance_fraction: float
+    acceptance_fraction_min: float
     autocorr_time: Mapping[str, float]
     effective_samples: Mapping[str, float]
     converged: bool
@@ -167,8 +176,8 @@ class Diagnostics:
     moves: str = DEFAULT_MOVES
 
     def to_dict(self) -> dict[str, object]:
-        return {"acceptance_fraction": float(np.mean(self.acceptance_fraction)),
-                "acceptance_fraction_min": float(np.min(self.acceptance_fraction)),
+        return {"acceptance_fraction": self.acceptance_fraction,
+                "acceptance_fraction_min": self.acceptance_fraction_min,
                 # None where not estimated (a coordinate that never moved: see reason)
                 "autocorr_time": {k: _or_none(v) for k, v in self.autocorr_time.items()},
                 "effective_samples": {k: _or_none(v) for k, v in self.effective_samples.items()},
@@ -176,6 +185,122 @@ class Diagnostics:
                 "walkers": self.walkers, "discard": self.discard, "thin": self.thin,
                 "tau_multiple": self.tau_multiple, "noise_model": self.noise_model,
                 "integrated": list(self.integrated), "moves": self.moves}
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> Diagnostics:
+        """Read back what :meth:`to_dict` wrote. A file from before the force offsets could be
+        integrated out (no ``integrated``, ``moves``) sampled every coordinate with the stretch
+        move."""
+        return cls(acceptance_fraction=float(data["acceptance_fraction"]),
+                   acceptance_fraction_min=float(data["acceptance_fraction_min"]),
+                   autocorr_time=_nan_for_none(data["autocorr_time"]),
+                   effective_samples=_nan_for_none(data["effective_samples"]),
+                   converged=bool(data["converged"]), reason=str(data["reason"]),
+                   steps=int(data["steps"]), walkers=int(data["walkers"]),
+                   discard=int(data["discard"]), thin=int(data["thin"]),
+                   tau_multiple=float(data["tau_multiple"]),
+                   noise_model=str(data["noise_model"]),
+                   integrated=tuple(data.get("integrated", ())),
+                   moves=str(data.get("moves", "stretch")))
+
+
+@dataclasses.dataclass(frozen=True)
+class PosteriorRecord:
+    """What ``posterior.json`` holds (:meth:`Posterior.to_dict`), read back by
+    :meth:`Posterior.from_dict`: a posterior's summaries in display units and its diagnostics,
+    without the samples (those are in ``chain.h5`` and ``posterior.nc``).
+
+    Attributes:
+        model: the model spec.
+        parameters: per model parameter its summary (``q05``, ``q50``, ``q95``, ``mean``,
+            ``std``, ``unit``: :meth:`Posterior.summary`), or ``value``, ``unit`` and
+            ``fixed: True`` for one held fixed.
+        derived: per DESIGN §1.2 quantity its summary (the numbers None where the model does
+            not define it).
+        nuisances: per sampled nuisance (``offset[log]``, ``friction_state0[log]``) its
+            summary.
+        diagnostics: see :class:`Diagnostics`.
+        noise: the noise model with its estimated settings.
+        noise_scale: per series (``force[log]``, ``pressure_a[log]`` ...) the errors' standard
+            deviation and its unit at the most probable sample.
+        priors: the priors' settings (:meth:`fitstiff.priors.Priors.to_dict`).
+        samples: the number of kept samples.
+        warnings: what the run warned of.
+        files: the logs' paths (their names where they have none).
+        fit: the least-squares start (``converged``, ``rms_N``, ``parameters`` and ``derived``
+            of its ``fit.json``); ``None`` for a resumed run, which has none.
+        identifiable, identifiable_reason, identifiability: the start's identifiability
+            verdict (as in ``fit.json``; ``None`` without a start).
+
+    The command line adds ``outputs`` (the files written beside it) to ``posterior.json``;
+    that is not part of the record.
+    """
+
+    model: str
+    parameters: Mapping[str, Mapping[str, Any]]
+    derived: Mapping[str, Mapping[str, Any]]
+    nuisances: Mapping[str, Mapping[str, Any]]
+    diagnostics: Diagnostics
+    noise: NoiseModel
+    noise_scale: Mapping[str, tuple[float, str]]
+    priors: Mapping[str, Any]
+    samples: int
+    warnings: tuple[str, ...]
+    files: tuple[str, ...]
+    fit: Mapping[str, Any] | None = None
+    identifiable: bool | None = None
+    identifiable_reason: str | None = None
+    identifiability: Mapping[str, Any] | None = None
+
+    @property
+    def free_parameters(self) -> tuple[str, ...]:
+        """The model parameters that were sampled (not held fixed), in the problem's order."""
+        return tuple(n for n, p in self.parameters.items() if not p.get("fixed"))
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """The problem's names: the free model parameters, then the nuisances (sampled or
+        integrated out)."""
+        return self.free_parameters + tuple(self.nuisances)
+
+    def to_dict(self) -> dict[str, object]:
+        """The ``posterior.json`` content (DESIGN §5)."""
+        out: dict[str, object] = {
+            "model": self.model,
+            "parameters": {k: dict(v) for k, v in self.parameters.items()},
+            "derived": {k: dict(v) for k, v in self.derived.items()},
+            "nuisances": {k: dict(v) for k, v in self.nuisances.items()},
+            "diagnostics": self.diagnostics.to_dict(),
+            "noise": {"model": self.noise.to_dict(),
+                      "scale": {label: {"sd": sd, "unit": unit}
+                                for label, (sd, unit) in self.noise_scale.items()}},
+            "priors": dict(self.priors),
+            "samples": self.samples,
+            "warnings": list(self.warnings),
+            "files": list(self.files),
+        }
+        if self.fit is not None:
+            out["fit"] = dict(self.fit)
+            out |= {"identifiable": self.identifiable,
+                    "identifiable_reason": self.identifiable_reason,
+                    "identifiability": self.identifiability}
+        return out
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> PosteriorRecord:
+        """Read back what :meth:`to_dict` wrote (``posterior.json``)."""
+        noise = data["noise"]
+        return cls(model=str(data["model"]), parameters=data["parameters"],
+                   derived=data["derived"], nuisances=data["nuisances"],
+                   diagnostics=Diagnostics.from_dict(data["diagnostics"]),
+                   noise=noise_from_dict(noise["model"]),
+                   noise_scale={label: (s["sd"], s["unit"])
+                                for label, s in noise["scale"].items()},
+                   priors=data["priors"], samples=int(data["samples"]),
+                   warnings=tuple(data["warnings"]), files=tuple(data["files"]),
+                   fit=data.get("fit"), identifiable=data.get("identifiable"),
+                   identifiable_reason=data.get("identifiable_reason"),
+                   identifiability=data.get("identifiability"))
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -243,36 +368,43 @@ class Posterior:
         s = self.summary(name)
         return s["q05"], s["q95"]
 
-    def to_dict(self) -> dict[str, object]:
-        """The ``posterior.json`` content (DESIGN §5)."""
+    def to_record(self) -> PosteriorRecord:
+        """What ``posterior.json`` keeps of this posterior: the summaries, not the samples."""
         problem = self.problem
-        parameters: dict[str, object] = {n: self.summary(n) for n in self.model_names}
-        fixed = fixed_values(problem)
-        for name, value in fixed.items():
+        parameters: dict[str, Mapping[str, Any]] = {n: self.summary(n)
+                                                     for n in self.model_names}
+        for name, value in fixed_values(problem).items():
             scale = problem.par_scale(name)
             parameters[name] = {"value": value / scale, "unit": problem.par_unit(name),
                                 "fixed": True}
-        nuisances = {n: self.summary(n) for n in self.names[len(self.model_names):]}
-        out: dict[str, object] = {
-            "model": problem.model.spec,
-            "parameters": parameters,
-            "derived": {k: self._defined_summary(k) for k in self.derived},
-            "nuisances": nuisances,
-            "diagnostics": self.diagnostics.to_dict(),
-            "noise": {"model": self.noise.to_dict(),
-                      "scale": {label: {"sd": sd, "unit": unit}
-                                for label, (sd, unit) in self.noise_scale.items()}},
-            "priors": self.priors.to_dict(),
-            "samples": int(self.samples.shape[0] * self.samples.shape[1]),
-            "warnings": list(self.warnings),
-            "files": [str(log.path) if log.path else log.name for log in problem.logs],
-        }
+        start: dict[str, Any] = {}
         if self.fit is not None:
             fit_dict = self.fit.to_dict()
-            out["fit"] = {k: fit_dict[k] for k in ("converged", "rms_N", "parameters", "derived")}
-            for key in ("identifiable", "identifiable_reason", "identifiability"):
-                out[key] = fit_dict[key]
-        return out
+            start = {key: fit_dict[key] for key in ("identifiable", "identifiable_reason",
+                                                     "identifiability")}
+            start["fit"] = {k: fit_dict[k] for k in ("converged", "rms_N", "parameters",
+                                                     "derived")}
+        return PosteriorRecord(
+            model=problem.model.spec, parameters=parameters,
+            derived={k: self._defined_summary(k) for k in self.derived},
+            nuisances={n: self.summary(n) for n in self.names[len(self.model_names):]},
+            diagnostics=self.diagnostics, noise=self.noise, noise_scale=dict(self.noise_scale),
+            priors=self.priors.to_dict(),
+            samples=int(self.samples.shape[0] * self.samples.shape[1]),
+            warnings=tuple(self.warnings),
+            files=tuple(str(log.path) if log.path else log.name for log in problem.logs),
+            **start)
+
+    def to_dict(self) -> dict[str, object]:
+        """The ``posterior.json`` content (DESIGN §5); :meth:`from_dict` reads it back."""
+        return self.to_record().to_dict()
+
+    @staticmethod
+    def from_dict(data: Mapping[str, Any]) -> PosteriorRecord:
+        """``posterior.json`` read back. It holds the summaries and diagnostics, not the samples
+        (those are in ``chain.h5``), so what comes back is a :class:`PosteriorRecord`, whose
+        :meth:`~PosteriorRecord.to_dict` gives ``data`` again."""
+        return PosteriorRecord.from_dict(data)
 
     def table(self) -> str:
         """A readable summary with units."""
@@ -280,7 +412,7 @@ class Posterior:
         verdict = "converged" if d.converged else "NOT CONVERGED"
         head = (f"model {self.problem.model.spec}, noise {d.noise_model}: {verdict} "
                 f"({d.reason}); {d.steps} steps x {d.walkers} walkers, acceptance "
-                f"{np.mean(d.acceptance_fraction):.2f}")
+                f"{d.acceptance_fraction:.2f}")
         lines = [head, f"  {'':<28}{'q50':>11}{'q05':>11}{'q95':>11}  unit"]
         defined = [k for k, v in self.derived.items() if np.isfinite(v).any()]
         for name in list(self.model_names) + defined:
@@ -329,6 +461,11 @@ class Posterior:
 
 def _or_none(value: float) -> float | None:
     return float(value) if math.isfinite(value) else None
+
+
+def _nan_for_none(values: Mapping[str, float | None]) -> dict[str, float]:
+    """The inverse of :func:`_or_none` over a mapping."""
+    return {k: math.nan if v is None else float(v) for k, v in values.items()}
 
 
 def _summary(values: np.ndarray, *, unit: str) -> dict[str, object]:
@@ -677,8 +814,10 @@ def _collect(problem: Problem, sampler: emcee.EnsembleSampler, check: Check, *,
     derived = {k: derived_values[:, i].reshape(thetas.shape[:2]) for i, k in enumerate(DERIVED)}
     tau = dict(zip(coordinates.names(problem), map(float, check.tau)))
     integrated = tuple(n for n in problem.names if n not in tau)
+    acceptance = np.asarray(sampler.acceptance_fraction)
     diagnostics = Diagnostics(
-        acceptance_fraction=np.asarray(sampler.acceptance_fraction), autocorr_time=tau,
+        acceptance_fraction=float(np.mean(acceptance)),
+        acceptance_fraction_min=float(np.min(acceptance)), autocorr_time=tau,
         effective_samples={k: walkers * kept / t for k, t in tau.items()},
         converged=check.converged, reason=check.reason, steps=n, walkers=walkers,
         discard=discard, thin=thin, tau_multiple=tau_multiple, noise_model=noise.name,

@@ -43,7 +43,7 @@ from fitstiff.errors import InputError
 from fitstiff.log import Log
 from fitstiff.model import Model
 from fitstiff.output import OutputDir
-from fitstiff.posterior import INFERENCE_DATA
+from fitstiff.posterior import INFERENCE_DATA, PosteriorRecord
 from fitstiff.problem import Problem
 from fitstiff.run import (MANIFEST, RESULT_FILES, Chain, Curves, RunDirectory, fit_curves,
                           open_run, posterior_curves, read_chain, read_json)
@@ -253,13 +253,14 @@ def _corner_figure(run: RunDirectory, truth: Mapping[str, float]) -> ReportFigur
     columns: list[np.ndarray] = []
     labels: list[str] = []
     truths: list[float | None] = []
-    names = [n for n, p in run.result["parameters"].items() if not p.get("fixed")]
-    for name in names + list(run.result["derived"]):
+    record = run.posterior
+    names = record.free_parameters
+    for name in names + tuple(record.derived):
         values = np.asarray(posterior[name]).ravel()
         if (not np.all(np.isfinite(values)) or np.ptp(values) == 0
                 or any(np.allclose(values, c, rtol=1e-9, atol=0) for c in columns)):
             continue
-        label, unit = (name, run.result["parameters"][name]["unit"]) if name in names \
+        label, unit = (name, record.parameters[name]["unit"]) if name in names \
             else split_unit(name)
         columns.append(values)
         labels.append(f"{label} [{unit}]" if unit not in ("", "-") else label)
@@ -284,12 +285,12 @@ def _chain_figures(run: RunDirectory, chain: Chain) -> list[ReportFigure]:
         values = chain.display[:, :, j]
         fig = Figure(figsize=(12, 3.8), layout="constrained")
         ax_trace, ax_tau = fig.subplots(1, 2)
-        plotting.plot_trace(ax_trace, values, name, unit=run.result["parameters"][name]["unit"])
+        plotting.plot_trace(ax_trace, values, name, unit=run.posterior.parameters[name]["unit"])
         ax_trace.axvline(chain.discard, color="tab:blue", ls=":", lw=1.2,
                          label=f"burn-in end (step {chain.discard})")
         ax_trace.legend(fontsize="small")
         plotting.plot_autocorr(ax_tau, values, name)
-        tau = run.result["diagnostics"]["autocorr_time"][name]
+        tau = run.posterior.diagnostics.autocorr_time[name]
         caption = (f"{name}: every walker's value over the steps (left; the steps before the "
                    f"dotted line are discarded as burn-in) and the running estimate of its "
                    f"integrated autocorrelation time (right; {tau:.3g} steps over the whole "
@@ -361,68 +362,70 @@ def _fit_verdict(result: Mapping[str, Any]) -> _Verdict:
     status = "bad" if not result["converged"] else ("caution" if warnings_ else "ok")
     if result.get("identifiable") is False:
         warnings_ = (headline,) + warnings_
-        headline = _not_identifiable(result)
+        headline = _not_identifiable(result.get("identifiable_reason"),
+                                     result.get("identifiability"))
         status = "bad"
     return _Verdict(status, headline, warnings_)
 
 
-def _not_identifiable(result: Mapping[str, Any]) -> str:
+def _not_identifiable(reason: str | None, details: Mapping[str, Any] | None) -> str:
     """The red headline of a fit (or the fit a posterior started from) whose data do not
-    separate the seal parameters (:mod:`fitstiff.identifiability`)."""
-    details = result.get("identifiability") or {}
+    separate the seal parameters (:mod:`fitstiff.identifiability`): its ``identifiable_reason``
+    and ``identifiability``."""
+    details = details or {}
     withheld = list(details.get("parameters", [])) + [
         split_unit(d)[0] for d in details.get("derived", [])]
     return ("The data do NOT identify the seal parameters: "
-            f"{result.get('identifiable_reason')} No standard error is given for "
+            f"{reason} No standard error is given for "
             f"{', '.join(withheld) or 'the affected quantities'}; do not quote them.")
 
 
-def _posterior_verdict(result: Mapping[str, Any], curves_rms: float) -> _Verdict:
-    d = result["diagnostics"]
-    tau = d["autocorr_time"]
+def _posterior_verdict(record: PosteriorRecord, curves_rms: float) -> _Verdict:
+    d = record.diagnostics
+    tau = d.autocorr_time
     worst = max(tau, key=lambda k: tau[k])
-    ess = d["effective_samples"]
+    ess = d.effective_samples
     fewest = min(ess, key=lambda k: ess[k])
-    if d["converged"]:
-        headline = f"The chain converged: {d['reason']}."
+    if d.converged:
+        headline = f"The chain converged: {d.reason}."
     else:
-        headline = (f"The chain did NOT converge: {d['reason']}. Its intervals are rough: run "
+        headline = (f"The chain did NOT converge: {d.reason}. Its intervals are rough: run "
                     "longer (fitstiff posterior --resume --steps N) before quoting them.")
     details = [
-        f"{d['steps']} steps x {d['walkers']} walkers, noise model {d['noise_model']}; "
-        f"burn-in {d['discard']} steps discarded, thinned by {d['thin']}: "
-        f"{result['samples']} samples kept.",
-        f"Mean acceptance fraction {d['acceptance_fraction']:.2f} (lowest walker "
-        f"{d['acceptance_fraction_min']:.2f}; 0.2-0.5 is healthy; proposal "
-        f"{d.get('moves', 'stretch')}).",
+        f"{d.steps} steps x {d.walkers} walkers, noise model {d.noise_model}; "
+        f"burn-in {d.discard} steps discarded, thinned by {d.thin}: "
+        f"{record.samples} samples kept.",
+        f"Mean acceptance fraction {d.acceptance_fraction:.2f} (lowest walker "
+        f"{d.acceptance_fraction_min:.2f}; 0.2-0.5 is healthy; proposal {d.moves}).",
         f"Integrated autocorrelation time: largest {tau[worst]:.3g} steps ({worst}); the chain "
-        f"is {d['steps'] / tau[worst]:.3g} of them long ({d['tau_multiple']:g} required).",
+        f"is {d.steps / tau[worst]:.3g} of them long ({d.tau_multiple:g} required).",
         f"Effective samples: fewest {ess[fewest]:.0f} ({fewest}).",
     ]
-    if d.get("integrated"):
+    if d.integrated:
         details.append(f"Integrated out analytically (exact conditional draws, not sampled): "
-                       f"{', '.join(d['integrated'])}.")
-    cautions = [w for w in result["warnings"] if d["reason"] not in w]   # said above
-    fit = result.get("fit")
-    misfit = any("posterior and least squares disagree" in w for w in result["warnings"])
+                       f"{', '.join(d.integrated)}.")
+    cautions = [w for w in record.warnings if d.reason not in w]   # said above
+    fit = record.fit
+    misfit = any("posterior and least squares disagree" in w for w in record.warnings)
     if fit and not misfit and curves_rms > (1 + _POSTERIOR_RMS_EXCESS) * fit["rms_N"]:
         cautions.append(f"The posterior median curve's RMS residual, {curves_rms:.3g} N, is "
                         f"more than {100 * _POSTERIOR_RMS_EXCESS:.0f} % above the "
                         f"least-squares fit's {fit['rms_N']:.3g} N: the walkers have not "
                         "found the optimum.")
-    status = "bad" if not d["converged"] else ("caution" if cautions else "ok")
-    if result.get("identifiable") is False:
+    status = "bad" if not d.converged else ("caution" if cautions else "ok")
+    if record.identifiable is False:
         details.insert(0, headline)
-        headline = _not_identifiable(result)
+        headline = _not_identifiable(record.identifiable_reason, record.identifiability)
         status = "bad"
     return _Verdict(status, headline, tuple(details + cautions))
 
 
-def _entries(result: Mapping[str, Any]) -> list[tuple[str, str, Mapping[str, Any]]]:
+def _entries(parameters: Mapping[str, Mapping[str, Any]],
+             derived: Mapping[str, Mapping[str, Any]]) -> list[tuple[str, str, Mapping[str, Any]]]:
     """``(name, label, entry)`` of the parameters, then the derived quantities (their entries
     given a ``unit``)."""
-    out = [(name, name, p) for name, p in result["parameters"].items()]
-    for name, d in result["derived"].items():
+    out = [(name, name, p) for name, p in parameters.items()]
+    for name, d in derived.items():
         label, unit = split_unit(name)
         out.append((name, label, {"unit": unit} | d))
     return out
@@ -430,7 +433,7 @@ def _entries(result: Mapping[str, Any]) -> list[tuple[str, str, Mapping[str, Any
 
 def _fit_tables(run: RunDirectory, truth: Mapping[str, float]) -> str:
     rows = []
-    for name, label, e in _entries(run.result):
+    for name, label, e in _entries(run.result["parameters"], run.result["derived"]):
         value, stderr = e["value"], e.get("stderr")
         if e.get("fixed"):
             spread, interval = "fixed", ""
@@ -447,10 +450,11 @@ def _fit_tables(run: RunDirectory, truth: Mapping[str, float]) -> str:
 
 
 def _posterior_tables(run: RunDirectory, truth: Mapping[str, float]) -> str:
-    fit = run.result.get("fit") or {}
+    record = run.posterior
+    fit = record.fit or {}
     least_squares = {**fit.get("parameters", {}), **fit.get("derived", {})}
     rows = []
-    for name, label, e in _entries(run.result):
+    for name, label, e in _entries(record.parameters, record.derived):
         if e.get("fixed"):
             rows.append([label, _fmt(e["value"]), "fixed", "", e["unit"], "",
                          _fmt(truth.get(name))])
@@ -549,7 +553,7 @@ def _posterior_report(run: RunDirectory, *, draws: int) -> _Report:
     rms = math.sqrt(sum(curves.rms(problem, i) ** 2 * len(log)
                         for i, log in enumerate(problem.logs))
                     / sum(len(log) for log in problem.logs))
-    nuisances = run.result["nuisances"]
+    nuisances = run.posterior.nuisances
     offsets = [nuisances.get(f"offset[{log.name}]", {}).get("q50") for log in problem.logs]
     summary = (_posterior_tables(run, truth)
                + _p("Posterior medians, standard deviations and central 90 % intervals. The "
@@ -563,8 +567,8 @@ def _posterior_report(run: RunDirectory, *, draws: int) -> _Report:
                          "states are in chain.h5 and posterior.nc."),
                  figures=tuple(_chain_figures(run, chain))),
     ]
-    return _Report(f"Posterior report: {run.result['model']}",
-                   _posterior_verdict(run.result, rms), summary, tuple(sections))
+    return _Report(f"Posterior report: {run.posterior.model}",
+                   _posterior_verdict(run.posterior, rms), summary, tuple(sections))
 
 
 def _diagnosis_report(run: RunDirectory, *, draws: int) -> _Report:

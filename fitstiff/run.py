@@ -48,7 +48,7 @@ from fitstiff.log import Log
 from fitstiff.model import Model, build_model
 from fitstiff.output import sha256_file
 from fitstiff.params import find_param
-from fitstiff.posterior import PREDICTIVE
+from fitstiff.posterior import PREDICTIVE, Posterior, PosteriorRecord
 from fitstiff.problem import NUISANCES, PROBLEM_OPTIONS, Problem
 
 __all__ = ["MANIFEST", "RESULT_FILES", "Chain", "Curves", "RunDirectory", "fit_curves",
@@ -77,6 +77,8 @@ class RunDirectory:
             held-out residuals it kept).
         inputs: the manifest's input files, each ``(path, sha256)``, all verified.
         logs: the re-read logs.
+        posterior: ``posterior.json`` read back (:meth:`Posterior.from_dict`), for a
+            posterior run.
     """
 
     path: Path
@@ -86,6 +88,7 @@ class RunDirectory:
     problem: Problem | None
     inputs: tuple[tuple[Path, str], ...]
     logs: tuple[Log, ...] = ()
+    posterior: PosteriorRecord | None = None
 
     @property
     def result_file(self) -> Path:
@@ -110,6 +113,7 @@ def open_run(directory: str | Path) -> RunDirectory:
                          "give the --out directory of fitstiff fit, posterior or diagnose")
     name = RESULT_FILES[kind]
     result = read_json(path / name)
+    posterior = _posterior_record(path / name, result) if kind == "posterior" else None
     latest = read_json(path / MANIFEST, missing="the run did not finish; run it again")
     # the run that wrote the result file: the manifest's, or one it keeps as an earlier run
     manifest = next((record for record in [latest, *latest.get("earlier_runs", [])]
@@ -127,7 +131,16 @@ def open_run(directory: str | Path) -> RunDirectory:
                    manifest=path / MANIFEST)
     problem = None if kind == "diagnosis" else _problem(logs, result, options)
     return RunDirectory(path=path, kind=kind, result=result, manifest=manifest,
-                        problem=problem, inputs=inputs, logs=tuple(logs))
+                        problem=problem, inputs=inputs, logs=tuple(logs), posterior=posterior)
+
+
+def _posterior_record(path: Path, result: Mapping[str, Any]) -> PosteriorRecord:
+    """``posterior.json`` read back, or an :class:`InputError` naming what it lacks."""
+    try:
+        return Posterior.from_dict(result)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise InputError(str(path), "posterior.json", f"cannot be read back ({exc!r})",
+                         "restore the file written by fitstiff posterior") from None
 
 
 def _reread(files: Sequence[str], options: Mapping[str, Any], *, manifest: Path) -> list[Log]:
@@ -266,13 +279,12 @@ class Chain:
 def read_chain(run: RunDirectory) -> Chain:
     import emcee
 
-    problem, result = run.problem, run.result
+    problem, diagnostics = run.problem, run.posterior.diagnostics
     path = run.path / CHAIN
     if not path.is_file():
         raise InputError(str(path), "chain file", "is missing",
                          "run fitstiff posterior again into this directory")
-    diagnostics = result["diagnostics"]
-    integrated = diagnostics.get("integrated", [])
+    integrated = diagnostics.integrated
     try:
         backend = emcee.backends.HDFBackend(str(path), name="mcmc", read_only=True)
         theta, log_prob = backend.get_chain(), backend.get_log_prob()
@@ -283,8 +295,7 @@ def read_chain(run: RunDirectory) -> Chain:
     except (OSError, KeyError, AttributeError) as exc:
         raise InputError(str(path), "chain file", f"cannot be read ({exc})",
                          "run fitstiff posterior again into this directory") from None
-    names = [n for n, p in result["parameters"].items() if not p.get("fixed")]
-    names += list(result["nuisances"])
+    names = list(run.posterior.names)
     sampled = [n for n in names if n not in integrated]
     if (names != problem.names or theta.shape[-1] != len(sampled)
             or (integrated and (base is None or kept is None
@@ -303,7 +314,7 @@ def read_chain(run: RunDirectory) -> Chain:
     scales = np.concatenate([problem.par.scales(), np.ones(problem.size - problem.par.size)])
     return Chain(theta=theta, log_prob=log_prob,
                   display=(flat / scales).reshape(theta.shape),
-                  discard=int(diagnostics["discard"]), thin=int(diagnostics["thin"]),
+                  discard=diagnostics.discard, thin=diagnostics.thin,
                   stored_kept=kept if integrated else None)
 
 
@@ -318,7 +329,7 @@ def posterior_curves(run: RunDirectory, chain: Chain, *, draws: int) -> Curves:
     best_theta = jnp.asarray(kept[int(np.argmax(chain.kept_log_prob))])
     best, _ = problem.unpack(best_theta)
     labels = term_labels(best)
-    scale = run.result["noise"]["scale"]
+    scale = run.posterior.noise_scale
     stored = _stored_predictive(run)
     if stored is None:
         pick = np.unique(np.linspace(0, kept.shape[0] - 1, min(draws, kept.shape[0])).round()
@@ -335,7 +346,7 @@ def posterior_curves(run: RunDirectory, chain: Chain, *, draws: int) -> Curves:
         terms = [p["contributions"] for p in problem.per_log(best_theta)]
     force, band, contributions = [], [], []
     for i, log in enumerate(problem.logs):
-        sd = scale[f"force[{log.name}]"]["sd"]
+        sd = scale[f"force[{log.name}]"][0]
         half = _Z90 * np.sqrt(spreads[i] ** 2 + sd**2)
         force.append(centres[i])
         band.append((centres[i] - half, centres[i] + half))
