@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import dataclasses
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 
 import emcee
 import numpy as np
@@ -43,11 +43,10 @@ class Check:
 
 
 def run_chunks(sampler: emcee.EnsembleSampler, state, *, names: Sequence[str], steps: int,
-                tau_multiple: float, check_every: int, progress: bool,
-                after_chunk: Callable[[], None] | None) -> Check:
+                tau_multiple: float, check_every: int, progress: bool) -> Check:
     """Run until the convergence rules hold or ``steps`` is reached; checks at multiples of
     ``check_every`` (absolute step numbers, so a resumed run stops where an uninterrupted
-    one would). ``after_chunk`` runs after every chunk."""
+    one would)."""
     from tqdm.auto import tqdm
 
     done = sampler.iteration
@@ -60,8 +59,6 @@ def run_chunks(sampler: emcee.EnsembleSampler, state, *, names: Sequence[str], s
                 bar.update(1)
             state = latest
             done = stop
-            if after_chunk:
-                after_chunk()
             check = check_convergence(sampler, names, tau_multiple, check_every)
             bar.set_postfix_str(f"need {tau_multiple:g} tau = "
                                 f"{tau_multiple * np.nanmax(check.tau):.0f} steps")

@@ -54,8 +54,9 @@ half the chain), ``thin`` = half of it unless given; effective samples = walkers
 tau.
 
 **Resume** (:mod:`fitstiff.chain`): with ``backend`` (a path) the chain goes to an HDF5 file
-with a signature of the problem; ``resume=True`` checks it and continues from the last stored
-step, giving the same chain as an uninterrupted run.
+(an emcee backend with fitstiff's own layout) with a signature of the problem;
+``resume=True`` checks it and continues from the last stored step, giving the same chain as
+an uninterrupted run.
 
 **Outputs.** :class:`Posterior`: thinned samples in SI, quantiles (``q05``, ``q50``, ``q95``,
 ``mean``, ``std``) of the parameters and of the derived quantities of DESIGN §1.2 (computed by a
@@ -506,7 +507,8 @@ def sample_posterior(logs_or_fit: Sequence[Log] | FitResult, model: Model | str 
         check_every: steps between convergence checks.
         thin: keep every ``thin``-th step (default: half the largest autocorrelation time).
         seed: seeds the start ball, the sampler and the choice of predictive draws.
-        backend: HDF5 file for the chain (emcee ``HDFBackend``); ``None`` keeps it in memory.
+        backend: HDF5 file for the chain (:class:`~fitstiff.chain.ChainBackend`); ``None``
+            keeps it in memory.
         resume: continue the chain stored in ``backend``.
         progress: progress bar on stderr; ``None``: when stderr is a terminal.
         draws: number of posterior draws of the model force kept for the report.
@@ -585,8 +587,7 @@ def sample_posterior(logs_or_fit: Sequence[Log] | FitResult, model: Model | str 
     try:
         check = run_chunks(sampler, state, names=coordinates.names(problem), steps=steps,
                             tau_multiple=tau_multiple, check_every=check_every,
-                            progress=sys.stderr.isatty() if progress is None else progress,
-                            after_chunk=store.compact if store else None)
+                            progress=sys.stderr.isatty() if progress is None else progress)
     finally:
         if store:
             store.backend.flush()      # also when interrupted: no sampled step is lost

@@ -36,11 +36,10 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-import h5py
 import numpy as np
 
 from fitstiff._jax import jax, jnp
-from fitstiff.chain import CHAIN, KEPT
+from fitstiff.chain import CHAIN, ChainStore
 from fitstiff.errors import InputError
 from fitstiff.fitting import FitResult
 from fitstiff.loading import load_logs
@@ -277,8 +276,6 @@ class Chain:
 
 
 def read_chain(run: RunDirectory) -> Chain:
-    import emcee
-
     problem, diagnostics = run.problem, run.posterior.diagnostics
     path = run.path / CHAIN
     if not path.is_file():
@@ -286,15 +283,11 @@ def read_chain(run: RunDirectory) -> Chain:
                          "run fitstiff posterior again into this directory")
     integrated = diagnostics.integrated
     try:
-        backend = emcee.backends.HDFBackend(str(path), name="mcmc", read_only=True)
-        theta, log_prob = backend.get_chain(), backend.get_log_prob()
-        with h5py.File(path, "r") as f:
-            group = f.get("fitstiff")
-            base = np.asarray(group.attrs["theta_start"]) if group is not None else None
-            kept = np.asarray(group[KEPT]) if group is not None and KEPT in group else None
+        stored = ChainStore(path, read_only=True).read()
     except (OSError, KeyError, AttributeError) as exc:
         raise InputError(str(path), "chain file", f"cannot be read ({exc})",
                          "run fitstiff posterior again into this directory") from None
+    theta, log_prob, base, kept = stored.chain, stored.log_prob, stored.theta_start, stored.kept
     names = list(run.posterior.names)
     sampled = [n for n in names if n not in integrated]
     if (names != problem.names or theta.shape[-1] != len(sampled)

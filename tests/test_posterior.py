@@ -11,12 +11,13 @@ import sys
 import time
 import warnings
 
-import h5py
 import numpy as np
 import pytest
 from conftest import REPO, polyline
 
+from fitstiff.chain import ChainBackend, ChainStore
 from fitstiff.cli import main
+from fitstiff.errors import InputError
 from fitstiff.likelihood import (AR1, Gaussian, Layout, LinearNuisances, StudentT,
                                  TurningPoints)
 from fitstiff.log import Log
@@ -249,8 +250,8 @@ def test_cli_posterior_contains_truth_and_writes_every_file(tmp_path, capsys):
     assert set(manifest["outputs"]) == {"chain.h5", "posterior.nc", "predictive.npz",
                                         "posterior.json"}
     assert not list(out.glob(".*partial*"))
-    with h5py.File(out / "chain.h5") as f:
-        assert f["mcmc"]["chain"].shape == (diag["steps"], 12, 4)
+    assert ChainBackend(out / "chain.h5", read_only=True).get_chain().shape == (
+        diag["steps"], 12, 4)
 
 
 def test_posterior_json_reads_back_to_the_same_content():
@@ -306,10 +307,8 @@ def test_cli_bad_options_exit_2_with_one_line(tmp_path, capsys, argv, fragment):
 
 # -- kill and resume -------------------------------------------------------------------------
 def _chain(path):
-    with h5py.File(path) as f:
-        g = f["mcmc"]
-        n = int(g.attrs["iteration"])
-        return g["chain"][:n], g["log_prob"][:n]
+    stored = ChainStore(path, read_only=True).read()
+    return stored.chain, stored.log_prob
 
 
 def test_killed_run_resumes_to_the_uninterrupted_chain(tmp_path):
@@ -331,9 +330,8 @@ def test_killed_run_resumes_to_the_uninterrupted_chain(tmp_path):
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and proc.poll() is None:
         try:
-            with h5py.File(partial, "r", locking=False) as f:
-                if int(f["mcmc"].attrs["iteration"]) > 0:
-                    break
+            if ChainBackend(partial, read_only=True).iteration > 0:
+                break
         except (OSError, KeyError):
             pass
         time.sleep(0.05)
@@ -359,6 +357,49 @@ def test_killed_run_resumes_to_the_uninterrupted_chain(tmp_path):
     code = main(argv + ["--model", "viscous+force_drift", "--out", str(killed), "--resume"])
     assert code == 2
     np.testing.assert_array_equal(_chain(killed / "chain.h5")[0], chain)
+
+
+def test_chain_file_is_an_emcee_backend_and_older_files_still_read(tmp_path):
+    """Issue 14: the chain is stored through emcee's backend interface (ChainBackend), in
+    fitstiff's own layout, whatever the batching: a sampler writing through it gives emcee's
+    in-memory chain, accepted counts and random state. A file of an older fitstiff (emcee's
+    HDFBackend layout) is still read, and not continued."""
+    import emcee
+
+    def sampler(backend=None):
+        out = emcee.EnsembleSampler(8, 2, lambda x: -0.5 * np.sum(x**2, axis=-1),
+                                    vectorize=True, backend=backend)
+        out.random_state = np.random.RandomState(1).get_state()
+        return out
+
+    start = np.random.default_rng(0).standard_normal((8, 2))
+    memory = sampler()
+    memory.run_mcmc(start, 60, progress=False)
+    backend = ChainBackend(tmp_path / "chain.h5")
+    backend.flush_seconds = 0.0                     # a batch every step
+    backend.reset(8, 2)
+    sampler(backend).run_mcmc(start, 60, progress=False)
+    reread = ChainBackend(tmp_path / "chain.h5", read_only=True)
+    assert reread.iteration == 60 and reread.shape == (8, 2)
+    np.testing.assert_array_equal(reread.get_chain(), memory.get_chain())
+    np.testing.assert_array_equal(reread.get_log_prob(thin=3), memory.get_log_prob(thin=3))
+    np.testing.assert_array_equal(reread.accepted, memory.backend.accepted)
+    assert all(np.array_equal(a, b) for a, b in zip(reread.random_state,
+                                                    memory.random_state))
+    with pytest.raises(RuntimeError, match="read-only"):
+        reread.reset(8, 2)
+
+    older = tmp_path / "older.h5"
+    emcee_file = emcee.backends.HDFBackend(str(older))
+    emcee_file.reset(8, 2)
+    sampler(emcee_file).run_mcmc(start, 20, progress=False)
+    ChainStore(older).write_settings({"model": "x"}, settings=Gaussian(),
+                                     theta_start=np.zeros(2))
+    read = ChainStore(older, read_only=True).read()
+    np.testing.assert_array_equal(read.chain, memory.get_chain()[:20])
+    assert read.kept is None and read.theta_start.shape == (2,)
+    with pytest.raises(InputError, match="written by an older fitstiff"):
+        ChainStore(older).resume({"model": "x"})
 
 
 # -- calibration machinery --------------------------------------------------------------------
