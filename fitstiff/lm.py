@@ -25,6 +25,18 @@ The algorithm is the classic one (Moré 1978 scaling, Nielsen 1999 damping updat
   when the gradient vanishes (every column of ``J`` orthogonal to ``r`` to 1e-12, or to 1e-6
   once no step decreases the cost any more).
 
+With ``normal=True`` the state keeps the Gram matrix ``J^T J`` instead of ``Q`` and ``R``
+and a trial step solves the damped normal equations ``(J^T J + lam D^2) d = -J^T r``
+(Cholesky). The Jacobian lives only while it is reduced at an accepted point, and it is
+built one forward-mode column at a time (:func:`jacobian_rows` with ``sequential=True``: the
+tangents of the hysteresis scan for one column alive at once, not for all of them), as
+``J^T`` whose products ``J^T J``, ``J^T r`` are fused multiply-and-sums (:func:`wide_dot`).
+That is the memory-lean form for long logs: one transient Jacobian and a few residual
+vectors, where the QR form (and optimistix's solvers) hold several ``(residuals,
+parameters)`` arrays at once (``benchmarks/fit_memory.py``). The normal equations square the
+condition number of ``J``, which the damping and the column scaling bound; the fit's
+covariance summary works on ``J``'s own QR either way (:func:`r_factor`).
+
 The status is returned, never dropped: :data:`CONVERGED`, :data:`MAX_STEPS` (the step budget
 ran out), :data:`NONFINITE` (the residuals at the start were not finite) or :data:`STALLED`
 (no trial step decreased the cost even with the damping at its ceiling).
@@ -38,8 +50,8 @@ from jax import lax
 
 from fitstiff._jax import jax, jnp
 
-__all__ = ["levenberg_marquardt", "LMResult", "CONVERGED", "MAX_STEPS", "NONFINITE", "STALLED",
-           "STATUS"]
+__all__ = ["levenberg_marquardt", "jacobian_rows", "wide_dot", "r_factor", "LMResult",
+           "CONVERGED", "MAX_STEPS", "NONFINITE", "STALLED", "STATUS"]
 
 CONVERGED, MAX_STEPS, NONFINITE, STALLED = 0, 1, 2, 3
 #: readable status, by code
@@ -64,8 +76,8 @@ class LMResult(NamedTuple):
 class _State(NamedTuple):
     z: jax.Array
     r: jax.Array
-    q: jax.Array            # thin Q of J
-    rr: jax.Array           # R of J
+    q: jax.Array            # thin Q of J (normal form: empty)
+    rr: jax.Array           # R of J (normal form: J^T J)
     g: jax.Array            # J^T r
     d: jax.Array            # column scales
     lam: jax.Array
@@ -85,15 +97,61 @@ def _cosine(g, norms, r):
     return jnp.max(jnp.where(denom > 0, jnp.abs(g) / jnp.where(denom > 0, denom, 1.0), 0.0))
 
 
-def _linearise(fn, z):
+def jacobian_rows(fn: Callable[[jax.Array], jax.Array], z: jax.Array, *,
+                  sequential: bool = False) -> jax.Array:
+    """``J^T`` of ``fn`` at ``z``: row ``j`` is the derivative of the residuals by ``z[j]``.
+
+    ``sequential=False`` is ``jax.jacfwd`` (all columns in one vectorised pass);
+    ``sequential=True`` takes one forward-mode column at a time (``lax.map``), so only one
+    column's tangents of the scan's intermediates are alive: for a 1 M-sample log (three
+    channels, five entries) 165 MB above the data, where the vectorised pass needs 355 MB.
+    """
+    basis = jnp.eye(z.size, dtype=z.dtype)
+
+    def column(e):
+        return jax.jvp(fn, (z,), (e,))[1]
+
+    return lax.map(column, basis) if sequential else jax.vmap(column)(basis)
+
+
+def wide_dot(a: jax.Array, b: jax.Array) -> jax.Array:
+    """``a b^T`` of two wide 2-d arrays (a row per parameter, a column per residual) as one
+    fused multiply-and-sum. A matrix product packs a copy of its operands first: 190 MB
+    more peak for ``J^T J`` of a 1 M-sample log's Jacobian (three channels, five entries)."""
+    return jnp.sum(a[:, None, :] * b[None, :, :], axis=-1)
+
+
+def r_factor(jt: jax.Array, *, block: int = 2**16) -> jax.Array:
+    """The triangular factor ``R`` of ``J = QR`` from ``J^T`` (``jt``), by a QR of each block
+    of ``block`` residuals and a QR of the stacked factors (the tall-skinny QR): as accurate
+    as one QR of ``J``, whose LAPACK call would copy all of ``J`` first. ``R`` is unique up
+    to the signs of its rows; ``R^T R = J^T J``."""
+    n, m = jt.shape
+    k = m // block
+    rest = jt[:, k * block:].T
+    if not k:
+        return jnp.linalg.qr(rest, mode="r")
+    blocks = lax.map(lambda i: jnp.linalg.qr(
+        lax.dynamic_slice(jt, (0, i * block), (n, block)).T, mode="r"), jnp.arange(k))
+    return jnp.linalg.qr(jnp.concatenate([blocks.reshape(-1, n), rest]), mode="r")
+
+
+def _linearise(fn, z, normal: bool):
+    """At ``z``: the residuals, the factors the steps use (``Q, R``, or an empty ``Q`` and
+    ``J^T J``), ``J^T r``, the column norms of ``J`` and whether ``J`` is finite."""
+    if normal:
+        jt = jacobian_rows(fn, z, sequential=True)
+        r = fn(z)
+        return (r, jnp.zeros((0, z.size)), wide_dot(jt, jt), jnp.sum(jt * r, axis=1),
+                jnp.sqrt(jnp.sum(jt**2, axis=1)), jnp.all(jnp.isfinite(jt)))
     jac, r = jax.jacfwd(lambda z: (fn(z), fn(z)), has_aux=True)(z)
-    q, rr = jnp.linalg.qr(jac, mode="reduced")
-    return r, jac, q, rr
+    (q, rr), g = jnp.linalg.qr(jac, mode="reduced"), jac.T @ r
+    return r, q, rr, g, _jac_norms(jac), jnp.all(jnp.isfinite(jac))
 
 
 def levenberg_marquardt(fn: Callable[[jax.Array], jax.Array], z0: jax.Array, *,
                         rtol: float = 1e-6, atol: float = 1e-6,
-                        max_steps: int | jax.Array = 200) -> LMResult:
+                        max_steps: int | jax.Array = 200, normal: bool = False) -> LMResult:
     """Minimise ``|fn(z)|^2`` from ``z0`` (traceable: call it inside ``jax.jit``).
 
     Args:
@@ -101,12 +159,12 @@ def levenberg_marquardt(fn: Callable[[jax.Array], jax.Array], z0: jax.Array, *,
         z0: the start.
         rtol, atol: the convergence tolerances (see the module docstring).
         max_steps: trial steps allowed (accepted or rejected).
+        normal: solve the damped normal equations, keeping no Jacobian between steps (the
+            memory-lean form for long residual vectors; see the module docstring).
     """
     z0 = jnp.asarray(z0, dtype=float)
-    r0, jac0, q0, rr0 = _linearise(fn, z0)
-    d0 = _jac_norms(jac0)
-    g0 = jac0.T @ r0
-    finite = jnp.all(jnp.isfinite(r0)) & jnp.all(jnp.isfinite(jac0))
+    r0, q0, rr0, g0, d0, jac_finite = _linearise(fn, z0, normal)
+    finite = jnp.all(jnp.isfinite(r0)) & jac_finite
     status0 = jnp.where(~finite, NONFINITE, jnp.where(_cosine(g0, d0, r0) <= _GTOL,
                                                       CONVERGED, -1))
     init = _State(z0, r0, q0, rr0, g0, d0, jnp.asarray(_LAM0), jnp.asarray(2.0),
@@ -117,32 +175,38 @@ def levenberg_marquardt(fn: Callable[[jax.Array], jax.Array], z0: jax.Array, *,
         floor = 1e-12 * jnp.maximum(jnp.max(s.d), 1e-300)
         return jnp.maximum(s.d, floor)
 
-    def body(s: _State) -> _State:
-        d = scales(s)
+    def trial_step(s: _State, d):
+        """The damped step and the decrease of the cost the linear model predicts for it."""
+        if normal:
+            lhs = s.rr + s.lam * jnp.diag(d**2)
+            step = jax.scipy.linalg.cho_solve(jax.scipy.linalg.cho_factor(lhs), -s.g)
+            return step, -(2.0 * step @ s.g + step @ (s.rr @ step))
         lhs = jnp.concatenate([s.rr, jnp.sqrt(s.lam) * jnp.diag(d)])
         rhs = jnp.concatenate([-(s.q.T @ s.r), jnp.zeros(n)])
         step = jnp.linalg.lstsq(lhs, rhs)[0]
+        jd = s.q @ (s.rr @ step)
+        return step, s.r @ s.r - (s.r + jd) @ (s.r + jd)
+
+    def body(s: _State) -> _State:
+        step, predicted = trial_step(s, scales(s))
         z_new = s.z + step
         r_new = fn(z_new)
         cost = s.r @ s.r
         cost_new = r_new @ r_new
-        jd = s.q @ (s.rr @ step)
-        predicted = cost - (s.r + jd) @ (s.r + jd)
         rho = (cost - cost_new) / jnp.where(predicted > 0, predicted, jnp.inf)
         ok = jnp.isfinite(cost_new) & (rho > 1e-4)
 
         def accept(_):
-            r, jac, q, rr = _linearise(fn, z_new)
+            r, q, rr, g, norms, _ = _linearise(fn, z_new, normal)
             small_step = jnp.all(jnp.abs(step) <= atol + rtol * jnp.abs(z_new))
             small_cost = jnp.abs(cost - cost_new) <= atol + rtol * cost
-            g = jac.T @ r
             # MINPACK's ftol test: the actual and the predicted decrease both negligible
             # (ends a parameter's slow walk towards a bound in the transformed coordinates)
             flat = (jnp.abs(cost - cost_new) <= rtol * cost) & (predicted <= rtol * cost)
             done = ((small_step & small_cost) | flat
-                    | (_cosine(g, _jac_norms(jac), r) <= _GTOL))
+                    | (_cosine(g, norms, r) <= _GTOL))
             lam = s.lam * jnp.maximum(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
-            return _State(z_new, r, q, rr, g, jnp.maximum(s.d, _jac_norms(jac)),
+            return _State(z_new, r, q, rr, g, jnp.maximum(s.d, norms),
                           lam, jnp.asarray(2.0), s.steps + 1,
                           jnp.where(done, CONVERGED, -1))
 

@@ -375,3 +375,23 @@ def test_fit_json_reads_back_to_the_fitted_theta():
     np.testing.assert_allclose(np.asarray(result.problem.physical(theta)),
                                np.asarray(result.problem.physical(result.theta)), rtol=1e-9)
     assert data["per_log"][0]["closing_pressure_bar"] != logs[2].rig.supply_pressure / 1e5
+
+
+def test_the_memory_lean_path_gives_the_fit_of_the_default_one(monkeypatch):
+    """A Jacobian beyond LEAN_JACOBIAN_MB switches to the normal-equations solve and the
+    column-at-a-time summary (benchmarks/fit_memory.py: 1 M samples in 923 MB); forced here
+    on a small joint fit, it lands on the same optimum with the same standard errors."""
+    import fitstiff.fitting as fitting
+
+    logs, _, _ = dataset("dahl", 5)
+    default = fit(logs[:2], "chamber+dahl")
+    monkeypatch.setattr(fitting, "LEAN_JACOBIAN_MB", 0.0)
+    lean = fit(logs[:2], "chamber+dahl")
+    assert default.solver == "lm" and lean.solver == "lm-normal"
+    assert default.converged and lean.converged
+    for name, p in default.parameters().items():
+        q = lean.parameters()[name]
+        np.testing.assert_allclose(q["value"], p["value"], rtol=1e-5, atol=1e-9, err_msg=name)
+        if p["stderr"] is not None:
+            np.testing.assert_allclose(q["stderr"], p["stderr"], rtol=1e-3, err_msg=name)
+    np.testing.assert_allclose(lean.rms_N, default.rms_N, rtol=1e-7)
