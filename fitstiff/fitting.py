@@ -23,7 +23,6 @@ standard error instead of a meaningless one.
 from __future__ import annotations
 
 import dataclasses
-import functools
 import math
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Any, NamedTuple
@@ -256,7 +255,7 @@ def initial_guess(problem: Problem, *,
     """
     model = problem.model
     chamber_only = [Model((model.term("chamber"),))] if model.has("chamber") else []
-    predict = problem.cached("predict", lambda: jax.jit(lambda m, d: m.predict(d)))
+    predict = _predict
     levels, offsets, slopes, states = [], [], [], []
     for log, seg, drive in zip(problem.logs, problem.segmentations, problem.drives):
         force = np.asarray(log.force)
@@ -346,25 +345,31 @@ class _Run(NamedTuple):
     cost: float
 
 
+#: a model's predicted force on a drive, compiled once per model structure (no data inside)
+_predict = jax.jit(lambda model, drive: model.predict(drive))
+
+
+def _solve(p: Problem, theta0, *, solver: str, rtol: float, atol: float, max_steps: int):
+    """The least-squares solve from ``theta0``: ``(theta, status, steps, cost)``
+    (compiled by :meth:`~fitstiff.problem.Problem.compiled`)."""
+    method = SOLVERS[solver](rtol, atol)
+    if isinstance(method, NormalEquationsLM):
+        sol = lm.levenberg_marquardt(p.residuals, theta0, rtol=rtol, atol=atol,
+                                     max_steps=max_steps, normal=True)
+        return sol.value, sol.status, sol.steps, sol.cost
+    residuals = materialised_jacobian(p.residuals)
+    sol = optx.least_squares(lambda theta, _: residuals(theta), method, theta0,
+                             max_steps=max_steps, throw=False)
+    r = p.residuals(sol.value)
+    return sol.value, sol.result, sol.stats["num_steps"], jnp.sum(r**2)
+
+
 def _solver(problem: Problem, solver: str, rtol: float, atol: float, max_steps: int):
     """The least-squares solve of ``problem``, ``theta0 -> _Run``, compiled once per
     settings and reused across starts and calls."""
-    method = SOLVERS[solver](rtol, atol)
-    own = isinstance(method, NormalEquationsLM)
-
-    def solve(p: Problem, theta0):
-        if own:
-            sol = lm.levenberg_marquardt(p.residuals, theta0, rtol=rtol, atol=atol,
-                                         max_steps=max_steps, normal=True)
-            return sol.value, sol.status, sol.steps, sol.cost
-        residuals = materialised_jacobian(p.residuals)
-        sol = optx.least_squares(lambda theta, _: residuals(theta), method, theta0,
-                                 max_steps=max_steps, throw=False)
-        r = p.residuals(sol.value)
-        return sol.value, sol.result, sol.stats["num_steps"], jnp.sum(r**2)
-
-    compiled = problem.cached(("solve", solver, rtol, atol, max_steps),
-                              lambda: problem.jit(solve))
+    own = SOLVERS[solver] is NormalEquationsLM
+    compiled = problem.compiled(_solve, solver=solver, rtol=rtol, atol=atol,
+                                max_steps=max_steps)
 
     def run(theta0) -> _Run:
         theta, status, steps, cost = compiled(theta0)
@@ -494,11 +499,10 @@ def _flat_walk(problem: Problem, theta, cost: float, *, solver: str, rtol: float
 def _summarise(problem: Problem, theta, *, converged: bool, message: str, steps: int,
                solver: str, starts: Mapping[str, int], notes: Sequence[str] = ()) -> FitResult:
     lean = _is_lean(problem)
-    ev = problem.cached("summary", lambda: problem.jit(functools.partial(
-        _summary_evaluate, spans=[[s.span for s in problem.residual_series() if s.log == i]
-                                  for i in range(problem.n_logs)], sequential=lean)))
-    eiv = problem.cached("summary_eiv", lambda: problem.jit(functools.partial(
-        _eiv_gram, sequential=lean)))
+    spans = tuple(tuple((s.span.start, s.span.stop) for s in problem.residual_series()
+                        if s.log == i) for i in range(problem.n_logs))
+    ev = problem.compiled(_summary_evaluate, spans=spans, sequential=lean)
+    eiv = problem.compiled(_eiv_gram, sequential=lean)
     summary = jax.tree.map(np.asarray, ev(theta))._replace(eiv_gram=np.asarray(eiv(theta)))
     check_finite(problem.logs, "the fit's whitened residuals and Jacobian", summary.largest,
                  limit=_RESIDUAL_LIMIT)
@@ -670,11 +674,12 @@ class _Summary(NamedTuple):
     eiv_gram: np.ndarray | None = None
 
 
-def _summary_evaluate(problem: Problem, theta, *, spans: Sequence[Sequence[slice]],
+def _summary_evaluate(problem: Problem, theta, *, spans: tuple[tuple[tuple[int, int], ...], ...],
                       sequential: bool) -> _Summary:
-    """The :class:`_Summary` at ``theta`` (compiled by :meth:`~fitstiff.problem.Problem.jit`);
-    ``spans``: per log, its entries of the residual vector; ``sequential``: build ``J`` one
-    column at a time (:func:`fitstiff.lm.jacobian_rows`)."""
+    """The :class:`_Summary` at ``theta`` (compiled by
+    :meth:`~fitstiff.problem.Problem.compiled`); ``spans``: per log, its ``(start, stop)``
+    entries of the residual vector; ``sequential``: build ``J`` one column at a time
+    (:func:`fitstiff.lm.jacobian_rows`)."""
 
     def derived_vec(th):
         model, _ = problem.unpack(th)
@@ -689,9 +694,9 @@ def _summary_evaluate(problem: Problem, theta, *, spans: Sequence[Sequence[slice
         # each log's share of the state column, masked rather than sliced out of J^T
         # (a slice of J^T is a copy: +130 MB for a 1 M-sample log)
         owner = jnp.full(state.shape, -1).at[jnp.concatenate(
-            [jnp.arange(sp.start, sp.stop) for log_spans in spans for sp in log_spans])].set(
-            jnp.concatenate([jnp.full(sp.stop - sp.start, i) for i, log_spans in
-                             enumerate(spans) for sp in log_spans]))
+            [jnp.arange(a, b) for log_spans in spans for a, b in log_spans])].set(
+            jnp.concatenate([jnp.full(b - a, i) for i, log_spans in enumerate(spans)
+                             for a, b in log_spans]))
         for i in range(len(spans)):
             u = jnp.where(owner == i, state, 0.0)
             cross.append(jnp.sum(jt * u, axis=1))

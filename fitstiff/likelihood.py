@@ -61,6 +61,7 @@ estimates from the least-squares residuals (returning a new instance);
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from collections.abc import Mapping, Sequence
 from typing import ClassVar
@@ -99,6 +100,9 @@ class Layout:
         mask: ``(R,)`` the residual is data (weight > 0).
         follows: ``(R,)`` the residual and the one before it are both data, in one series.
         counts: ``(S,)`` number of data per series.
+
+    Two layouts of the same series are equal (and hash alike): compiled functions specialised
+    on a layout are shared by every layout of one problem.
     """
 
     series: tuple[ResidualSeries, ...]
@@ -107,6 +111,17 @@ class Layout:
     mask: np.ndarray
     follows: np.ndarray
     counts: np.ndarray
+
+    @functools.cached_property
+    def _key(self) -> tuple:
+        return (self.labels, tuple((s.log, s.channel, s.span.start, s.span.stop)
+                                   for s in self.series), self.mask.tobytes())
+
+    def __eq__(self, other) -> bool:
+        return isinstance(other, Layout) and self._key == other._key
+
+    def __hash__(self) -> int:
+        return hash(self._key)
 
     @classmethod
     def from_problem(cls, problem: Problem) -> Layout:
@@ -190,23 +205,29 @@ class TurningPoints:
         sizes = [len(rows) for rows, _ in where]
         if not sum(sizes):
             return cls(np.zeros((layout.size, 0)), np.zeros(0, dtype=int))
-
-        def jacobian(p: Problem, delta):
-            def residuals(delta):
-                moved, start = [], 0
-                for x, s, (rows, cols), k in zip(p.displacements(), scales, where, sizes):
-                    bump = jnp.zeros(x.shape).at[rows, cols].set(delta[start:start + k]
-                                                                 * s[rows, cols])
-                    moved.append(x + bump)
-                    start += k
-                return p.residuals(theta, tuple(moved))
-            return jax.jacfwd(residuals)(delta)
-
-        columns = np.array(problem.jit(jacobian)(jnp.zeros(sum(sizes))))
+        columns = np.array(problem.compiled(_turning_point_columns)(
+            jnp.zeros(sum(sizes)), jnp.asarray(theta), tuple(where)))
         force = np.array([e.channel == "force" for e in layout.series])[layout.segment]
         columns[~force] = 0.0
         columns = columns[:, np.any(columns != 0.0, axis=0)]
         return cls(columns, layout.segment[np.argmax(np.abs(columns), axis=0)])
+
+
+def _turning_point_columns(p: Problem, delta, theta, where):
+    """``d residuals / d delta`` at ``delta = 0``: ``delta`` moves the displacement at the
+    reversal samples ``where`` (per group, ``(rows, cols)``) by multiples of their errors."""
+    scales = p.reversal_noise()
+
+    def residuals(delta):
+        moved, start = [], 0
+        for x, s, (rows, cols) in zip(p.displacements(), scales, where):
+            k = rows.shape[0]
+            bump = jnp.zeros(x.shape).at[rows, cols].set(delta[start:start + k] * s[rows, cols])
+            moved.append(x + bump)
+            start += k
+        return p.residuals(theta, tuple(moved))
+
+    return jax.jacfwd(residuals)(delta)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -234,7 +255,7 @@ class LinearNuisances:
         theta = np.asarray(theta, dtype=float)
         if not index.size:
             return cls(np.zeros((layout.size, 0)), np.zeros(0, dtype=int), index)
-        residuals = problem.cached("posterior_residuals", lambda: problem.jit(Problem.residuals))
+        residuals = problem.compiled(Problem.residuals)
         base = np.asarray(residuals(jnp.asarray(theta)))
         columns = np.empty((base.size, index.size))
         for j, i in enumerate(index):

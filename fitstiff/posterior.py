@@ -533,7 +533,7 @@ def sample_posterior(logs_or_fit: Sequence[Log] | FitResult, model: Model | str 
     if moves not in MOVES:
         raise InputError(None, f"--moves {moves}", "unknown proposal",
                          f"use one of: {', '.join(MOVES)}")
-    layout = problem.cached("layout", lambda: Layout.from_problem(problem))
+    layout = Layout.from_problem(problem)
     integrated = _integrated(problem, noise, prior_set, integrate_offsets)
     sampled = [n for i, n in enumerate(problem.names) if i not in set(integrated)]
     if walkers < 2 * len(sampled):
@@ -637,7 +637,7 @@ def log_posterior(fit: FitResult, *, noise_model: str | NoiseModel = DEFAULT_NOI
         batch: rows per compiled call of the returned :class:`LogPosterior`.
     """
     problem = fit.problem
-    layout = problem.cached("layout", lambda: Layout.from_problem(problem))
+    layout = Layout.from_problem(problem)
     noise, _ = _prepared(problem, likelihood.noise_model(noise_model), fit.theta, layout)
     return LogPosterior(problem, noise, Priors(problem, priors), batch=batch)
 
@@ -712,35 +712,69 @@ class LogPosterior:
 
     def __init__(self, problem: Problem, noise: NoiseModel, priors: Priors, *, batch: int,
                  coordinates: _Coordinates | None = None):
-        layout = problem.cached("layout", lambda: Layout.from_problem(problem))
+        layout = Layout.from_problem(problem)
         self.problem, self.noise, self.priors, self.batch = problem, noise, priors, batch
         self.coordinates = coordinates
 
-        def full(coords):
-            return coords if coordinates is None else coordinates.full(coords)
-
-        def given(residuals, coords):
-            theta = full(coords)
-            lp = (noise.log_likelihood(residuals, layout)
-                  + priors.log_density(problem.physical(theta)) + problem.log_jacobian(theta))
-            return jnp.where(jnp.isnan(lp), -jnp.inf, lp)
+        options = dict(noise=noise, priors=priors, layout=layout, coordinates=coordinates)
 
         def one(coords):
-            return given(problem.residuals(full(coords)), coords)
+            return _given(problem, problem.residuals(_full(coordinates, coords)), coords,
+                          **options)
 
         self.one = one
         # two compiled calls, not one: XLA's CPU backend fused the likelihood into the scan's
         # output at twice the cost of the two apart (four logs of 35 000 samples, 16 rows:
         # 24 ms fused, 5.9 + 5.1 ms apart)
-        residuals = problem.cached(
-            ("posterior_residual_rows", batch, coordinates),
-            lambda: problem.jit(lambda p, rows: jax.vmap(lambda c: p.residuals(full(c)))(rows)))
-        rest = problem.cached(("log_posterior_given", noise, priors.key, batch, coordinates),
-                              lambda: jax.jit(jax.vmap(given)))
+        residuals = problem.compiled(_residual_rows, coordinates=coordinates)
+        rest = problem.compiled(_given_rows, **options)
         self._fn = lambda rows: rest(residuals(rows), rows)
 
     def __call__(self, coords: np.ndarray) -> np.ndarray:
         return _batched(self._fn, np.asarray(coords, dtype=float), batch=self.batch)
+
+
+def _full(coordinates: _Coordinates | None, coords):
+    return coords if coordinates is None else coordinates.full(coords)
+
+
+def _given(p: Problem, residuals, coords, *, noise: NoiseModel, priors: Priors,
+           layout: Layout, coordinates: _Coordinates | None):
+    """The log-posterior of one row of sampled coordinates, given its residuals."""
+    theta = _full(coordinates, coords)
+    lp = (noise.log_likelihood(residuals, layout)
+          + priors.log_density(p.physical(theta)) + p.log_jacobian(theta))
+    return jnp.where(jnp.isnan(lp), -jnp.inf, lp)
+
+
+def _given_rows(p: Problem, residuals, rows, **options):
+    return jax.vmap(lambda r, c: _given(p, r, c, **options))(residuals, rows)
+
+
+def _residual_rows(p: Problem, rows, *, coordinates: _Coordinates | None):
+    return jax.vmap(lambda c: p.residuals(_full(coordinates, c)))(rows)
+
+
+def _physical_rows(p: Problem, rows):
+    return jax.vmap(p.physical)(rows)
+
+
+def _derived_rows(p: Problem, rows):
+    return jax.vmap(lambda th: jnp.stack([_derived(p, th)[k] for k in DERIVED]))(rows)
+
+
+def _force_rows(p: Problem, rows):
+    return jax.vmap(lambda theta: jnp.concatenate(
+        [pred.force.ravel() for pred in p.predictions(theta)]))(rows)
+
+
+def _linear_draw_rows(p: Problem, rows, *, noise: NoiseModel, layout: Layout, size: int,
+                      columns: int):
+    """Draws of the integrated entries given each row ``[theta, z, chi2]``."""
+    def draw(row):
+        theta, z, c = row[:size], row[size:size + columns], row[size + columns:]
+        return noise.linear_draws(p.residuals(theta), layout, z, c)
+    return jax.vmap(draw)(rows)
 
 
 def _batched(fn: Callable, rows: np.ndarray, *, batch: int) -> np.ndarray:
@@ -806,11 +840,9 @@ def _collect(problem: Problem, sampler: emcee.EnsembleSampler, check: Check, *,
     flat = _full_thetas(problem, noise, layout, coordinates,
                         coords.reshape(-1, coords.shape[-1]), rng)
     thetas = flat.reshape(coords.shape[:2] + flat.shape[-1:])
-    physical = problem.cached("posterior_physical", lambda: jax.jit(jax.vmap(problem.physical)))
+    physical = problem.compiled(_physical_rows)
     samples = _batched(physical, flat, batch=_DERIVED_BATCH).reshape(thetas.shape)
-    derived_fn = problem.cached("posterior_derived", lambda: problem.jit(
-        lambda p, rows: jax.vmap(lambda th: jnp.stack([_derived(p, th)[k] for k in DERIVED]))(
-            rows)))
+    derived_fn = problem.compiled(_derived_rows)
     derived_values = _batched(derived_fn, flat, batch=_DERIVED_BATCH)
     derived = {k: derived_values[:, i].reshape(thetas.shape[:2]) for i, k in enumerate(DERIVED)}
     tau = dict(zip(coordinates.names(problem), map(float, check.tau)))
@@ -877,15 +909,8 @@ def _full_thetas(problem: Problem, noise: NoiseModel, layout: Layout,
     dof = noise.dof(layout)
     normal = rng.standard_normal((coords.shape[0], columns))
     chi2 = rng.chisquare(np.maximum(dof, 1), size=(coords.shape[0], dof.size))
-    d = full.shape[1]
-
-    def draws(p: Problem, rows):
-        def draw(row):
-            theta, z, c = row[:d], row[d:d + columns], row[d + columns:]
-            return noise.linear_draws(p.residuals(theta), layout, z, c)
-        return jax.vmap(draw)(rows)
-
-    fn = problem.cached(("posterior_linear_draws", noise), lambda: problem.jit(draws))
+    fn = problem.compiled(_linear_draw_rows, noise=noise, layout=layout, size=full.shape[1],
+                          columns=columns)
     corrections = _batched(fn, np.concatenate([full, normal, chi2], axis=1),
                            batch=_RESIDUAL_BATCH)
     full[:, linear.index] += corrections
@@ -893,7 +918,7 @@ def _full_thetas(problem: Problem, noise: NoiseModel, layout: Layout,
 
 
 def _residuals(problem: Problem, theta: np.ndarray) -> np.ndarray:
-    fn = problem.cached("posterior_residuals", lambda: problem.jit(Problem.residuals))
+    fn = problem.compiled(Problem.residuals)
     return np.asarray(fn(jnp.asarray(theta)))
 
 
@@ -907,12 +932,7 @@ def _predictive(problem: Problem, noise: NoiseModel, layout: Layout, flat: np.nd
     """Model-force draws per log (thinned to at most ``_PREDICTIVE_POINTS`` samples), the
     median and spread of the draws at every sample, and the noise level per series at the
     most probable sample."""
-
-    def forces(p: Problem, rows):
-        return jax.vmap(lambda theta: jnp.concatenate(
-            [pred.force.ravel() for pred in p.predictions(theta)]))(rows)
-
-    fn = problem.cached("posterior_forces", lambda: problem.jit(forces))
+    fn = problem.compiled(_force_rows)
     pick = rng.choice(flat.shape[0], size=min(draws, flat.shape[0]), replace=False)
     curves = _batched(fn, flat[np.sort(pick)], batch=_PREDICTIVE_BATCH)
     whitened = np.asarray(noise.series_scale(jnp.asarray(_residuals(problem, best)), layout))

@@ -202,6 +202,12 @@ class Priors:
         """Hashable identity (for caching compiled functions)."""
         return tuple((n, p) for n, p in self.priors.items())
 
+    def __eq__(self, other) -> bool:
+        return isinstance(other, Priors) and self.key == other.key
+
+    def __hash__(self) -> int:
+        return hash(self.key)
+
     def to_dict(self) -> dict[str, dict[str, object]]:
         return {n: p.to_dict() for n, p in self.priors.items()}
 

@@ -21,8 +21,9 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import functools
 import math
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import NamedTuple
 
 import equinox as eqx
@@ -101,13 +102,19 @@ class Problem:
             that settles the friction state).
         free: optional nuisances to fit: ``"closing_pressure"`` (each log's closing pressure
             of its closed chambers; ``supply_bar`` then only gives the start value).
+        segmentations: one :class:`~fitstiff.segmentation.Segmentation` per log (reversals,
+            pauses, regions, displacement noise), e.g. from :func:`~fitstiff.segmentation.segment`
+            with other options; default ``segment(log)`` for each log.
+
+    A problem is immutable: every attribute is set by the constructor. Compiled functions of
+    it are made by :meth:`compiled`.
     """
 
     def __init__(self, logs: Sequence[Log], model: Model | str, *,
                  fix: Mapping[str, float | None] | Iterable[str] = (), denoise: bool | str = "auto",
                  sample_range: tuple[int | None, int | None] | None = None,
                  weights: Mapping[str, float] | None = None, skip: int = 0,
-                 free: Iterable[str] = ()):
+                 free: Iterable[str] = (), segmentations: Sequence[Segmentation] | None = None):
         if not logs:
             raise InputError(None, "logs", "none given", "name at least one CSV log")
         free = set(free)
@@ -117,7 +124,7 @@ class Problem:
                              f"use one of: {', '.join(OPTIONAL_NUISANCES)}")
         self.logs = list(logs)
         check_logs(self.logs)
-        self.segmentations: list[Segmentation] = [segment(log) for log in self.logs]
+        self.segmentations: list[Segmentation] = _segmentations(self.logs, segmentations)
         spec = model if isinstance(model, str) else model.spec
         names = [n for n, _ in parse_spec(spec)]
         needs = "chamber" in names or "pressure_friction" in names
@@ -170,11 +177,18 @@ class Problem:
         self.sample_weights = [self._weights(log, seg, sample_range, weights, skip)
                                for log, seg in zip(self.logs, self.segmentations)]
         self._groups = self._build_groups()
-        self._compiled: dict[object, object] = {}
+        self._compiled: dict[tuple, Callable] = {}
         self._reversal_noise: tuple | None = None
         self.n_data = int(sum(int(np.count_nonzero(np.asarray(g.weight))) + sum(
             int(np.count_nonzero(np.asarray(w))) for w in g.pressure_weight if w is not None)
             for g in self._groups))
+        self._frozen = True
+
+    def __setattr__(self, name, value):
+        if getattr(self, "_frozen", False):
+            raise AttributeError(f"a Problem is immutable: cannot set '{name}' (build a new "
+                                 "Problem with other logs, model or options)")
+        object.__setattr__(self, name, value)
 
     # -- set-up ---------------------------------------------------------------------------
     @staticmethod
@@ -371,7 +385,7 @@ class Problem:
                     row[reversal_samples(x, seg.reversals)] = self.displacement_noise[i]
                 rows.append(row)
             out.append(jnp.asarray(np.stack(rows)))
-        self._reversal_noise = tuple(out)
+        object.__setattr__(self, "_reversal_noise", tuple(out))     # computed once, on demand
         return self._reversal_noise
 
     def _group_drive(self, group: _Group, nuisances, displacement=None):
@@ -428,8 +442,7 @@ class Problem:
     def per_log(self, theta) -> list[dict[str, np.ndarray]]:
         """Per log (in order): predicted force, per-term forces and pressures, unpadded."""
         out: list[dict[str, np.ndarray] | None] = [None] * self.n_logs
-        predictions = self.cached("predictions",
-                                  lambda: self.jit(lambda p, th: p.predictions(th)))
+        predictions = self.compiled(Problem.predictions)
         for group, pred in zip(self._groups, predictions(theta)):
             for row, i in enumerate(group.index):
                 n = len(self.logs[i])
@@ -465,34 +478,55 @@ class Problem:
     def par_unit(self, name: str) -> str:
         return find_param(self.model, name).unit
 
-    def cached(self, key, factory):
-        """A compiled function for this problem, made once per ``key`` by ``factory()``
-        (solvers, Jacobians: repeated fits and summaries reuse the compilation)."""
-        if key not in self._compiled:
-            self._compiled[key] = factory()
-        return self._compiled[key]
+    def compiled(self, fn: Callable, /, **options) -> Callable:
+        """``fn(problem, *args, **options)`` compiled for this problem, as ``f(*args)``.
 
-    def jit(self, fn):
-        """``fn(problem, *args)`` compiled (``equinox.filter_jit``) as ``f(*args)``, with
-        this problem's data arrays (the stacked drives, measurements and weights, the
-        per-log drives) passed to the executable as arguments.
-
-        A function that closes over the problem instead compiles its arrays into the
-        executable as constants: a copy per compiled function that XLA copies again while
-        compiling (``benchmarks/fit_memory.py``: about 600 MB more peak for the solve of
-        a 1 M-sample log). ``fn`` receives a copy of the problem whose arrays are the
-        traced arguments; it must reach the data only through it.
+        ``fn`` is a module-level function (or a method of :class:`Problem`) that reaches the
+        data only through its ``problem`` argument; ``options`` are static (hashable) values
+        it is specialised on (a solver's tolerances, a noise model). It is compiled with
+        ``equinox.filter_jit`` with this problem's data arrays (the stacked drives,
+        measurements and weights, the turning-point errors) passed to the executable as
+        arguments: a function closing over the problem would compile them in as constants, a
+        copy per function that XLA copies again while compiling (``benchmarks/fit_memory.py``:
+        about 600 MB more peak for the solve of a 1 M-sample log). The compilation is made
+        once per ``(fn, options)`` and lives as long as the problem: kept in a module-level
+        cache instead, it would keep every problem's data alive with it.
         """
-        compiled = eqx.filter_jit(lambda arrays, *args: fn(self._with_arrays(arrays), *args))
-        return lambda *args: compiled(self._arrays(), *args)
+        key = (fn, tuple(sorted(options.items())))
+        if key not in self._compiled:
+            bound = functools.partial(fn, **options) if options else fn
+            jitted = eqx.filter_jit(lambda arrays, *args: bound(self._with_arrays(arrays), *args))
+            self._compiled[key] = lambda *args: jitted(self._arrays(), *args)
+        return self._compiled[key]
 
     def _arrays(self):
         return self._groups, self.drives, self.reversal_noise()
 
     def _with_arrays(self, arrays) -> Problem:
+        """A copy whose data arrays are ``arrays`` (the traced arguments of :meth:`compiled`)."""
         bound = copy.copy(self)
-        bound._groups, bound.drives, bound._reversal_noise = arrays
+        for name, value in zip(("_groups", "drives", "_reversal_noise"), arrays):
+            object.__setattr__(bound, name, value)
         return bound
+
+
+def _segmentations(logs: Sequence[Log], given: Sequence[Segmentation] | None
+                   ) -> list[Segmentation]:
+    """``given`` checked against ``logs`` (one per log, of its length), or ``segment(log)``."""
+    if given is None:
+        return [segment(log) for log in logs]
+    given = list(given)
+    if len(given) != len(logs):
+        raise InputError(None, "segmentations", f"{len(given)} given for {len(logs)} logs",
+                         "give one Segmentation per log, in the order of the logs")
+    for log, seg in zip(logs, given):
+        if not isinstance(seg, Segmentation) or len(seg.still) != len(log):
+            found = (type(seg).__name__ if not isinstance(seg, Segmentation)
+                     else f"one of {len(seg.still)} samples")
+            raise InputError(log.path and str(log.path) or log.name, "segmentation",
+                             f"found {found} for a log of {len(log)} samples",
+                             "give the Segmentation of this log (fitstiff.segment(log))")
+    return given
 
 
 def _length_buckets(index: Sequence[int], lengths: Sequence[int]) -> list[list[int]]:

@@ -20,7 +20,6 @@ predictions) all call the same compiled functions:
 from __future__ import annotations
 
 import dataclasses
-import functools
 import threading
 from collections.abc import Mapping, Sequence
 
@@ -188,11 +187,11 @@ class SuperProblem:
         self._lengths = {per_log,
                          int(self.model_mask(self.baseline_terms).sum()) + largest
                          + (self.size - self.n_model)}
-        self._solvers: dict[int, object] = {}
         self._lock = threading.Lock()
-        self._jac = self.problem.jit(functools.partial(_jacobian, n_model=self.n_model))
-        self._forces = self.problem.jit(_forces)
-        self._column = self.problem.jit(_column)
+        self._jac = self.problem.compiled(_jacobian, n_model=self.n_model)
+        self._forces = self.problem.compiled(_forces)
+        self._column = self.problem.compiled(_column)
+        self._solve = self.problem.compiled(_masked_solve)
 
     # -- masks ------------------------------------------------------------------------------
     def model_mask(self, terms: Sequence[str]) -> np.ndarray:
@@ -279,20 +278,14 @@ class SuperProblem:
             if size is None:       # accepted effects enlarged the model: one more length
                 size = 4 * -(-free.size // 4)
                 self._lengths.add(size)
-            solver = self._solver(size)
         index = np.full(size, self.size)          # the padding slot: theta[size] is unused
         index[:free.size] = free
         theta_pad = np.append(np.asarray(theta0, dtype=float), 0.0)
-        theta, result, steps, cost = solver(
+        theta, result, steps, cost = self._solve(
             jnp.asarray(theta_pad), jnp.asarray(index), jnp.asarray(hold),
             jnp.asarray(free_model), jnp.asarray(weights), max_steps)
         ok = int(result) == CONVERGED and bool(np.isfinite(cost))
         return np.asarray(theta)[:self.size], ok, int(steps), float(cost)
-
-    def _solver(self, size: int):
-        if size not in self._solvers:
-            self._solvers[size] = self.problem.jit(_masked_solve)
-        return self._solvers[size]
 
     def jacobian(self, x, theta) -> tuple[np.ndarray, np.ndarray]:
         """Residuals and ``d residuals / d (x, nuisances)`` at physical model values ``x``."""
