@@ -28,7 +28,7 @@ import numpy as np
 
 from fitstiff._jax import jnp
 from fitstiff.drive import make_drive
-from fitstiff.terms.base import Modulation, Term
+from fitstiff.terms.base import FrictionBase, Modifier, Modulation
 
 __all__ = ["DERIVED", "derived_quantities", "presliding_curve", "split_unit"]
 
@@ -41,12 +41,11 @@ _SAMPLES = 4001
 _QUASI_STATIC_SPEED = 1e-6  # m/s
 
 
-class _Level(Term):
+class _Level(Modifier):
     """A constant friction level factor (the modifiers' reference condition)."""
 
     name = "reference_level"
-    kind = "modifier"
-    targets = "friction"
+    targets = FrictionBase
     level: float = 1.0
 
     def modulate(self, state, s, drive):
@@ -65,10 +64,10 @@ def split_unit(name: str) -> tuple[str, str]:
 def _reference(model):
     from fitstiff.model import Model
 
-    bases = model.of_kind("friction")
+    bases = model.terms_of(FrictionBase)
     level = jnp.asarray(1.0)
-    for m in model.of_kind("modifier"):
-        if m.targets == "friction":
+    for m in model.terms_of(Modifier):
+        if m.targets is FrictionBase:
             level = level * m.reference_level()
     sub = Model(tuple(bases) + (_Level(level=level),)) if bases else None
     return bases, level, sub

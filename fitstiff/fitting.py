@@ -40,7 +40,7 @@ from fitstiff.log import Log
 from fitstiff.model import Model
 from fitstiff.params import Parameterization, named_params
 from fitstiff.problem import Problem
-from fitstiff.terms.base import FrictionEstimate
+from fitstiff.terms.base import FrictionBase, FrictionEstimate, Modifier
 
 __all__ = ["FitResult", "fit", "fit_problem", "initial_guess", "SOLVERS", "LEAN_JACOBIAN_MB"]
 
@@ -285,7 +285,7 @@ def initial_guess(problem: Problem, *,
         level=float(np.median(levels)),
         tangent=float(np.median([s for s, _ in slopes])) if slopes else None,
         reversal_state=float(np.median([r for _, r in slopes])) if slopes else 1.0)
-    bases = [t.name for t in model.of_kind("friction") if bases is None or t.name in bases]
+    bases = [t.name for t in model.terms_of(FrictionBase) if bases is None or t.name in bases]
     terms = [t.start(estimate, share=1.0 / len(bases)) if t.name in bases else t
              for t in model.terms]
     guess = model.with_terms(tuple(terms))
@@ -626,8 +626,8 @@ def _identifiability(problem: Problem, summary: _Summary,
     kinds = {}
     for i, p, flat in named_params(problem.model):
         term = problem.model.terms[i]
-        is_seal = term.kind == "friction" or (term.kind == "modifier"
-                                              and term.targets == "friction")
+        is_seal = isinstance(term, FrictionBase) or (isinstance(term, Modifier)
+                                                     and term.targets is FrictionBase)
         for n in flat:
             kinds[n] = (is_seal, p.unit)
     seal = [n for n in problem.par.names if kinds[n][0]]

@@ -24,9 +24,11 @@ from fitstiff._jax import jax, jnp
 from fitstiff.drive import Drive, drive_from_log
 from fitstiff.errors import InputError
 from fitstiff.log import Log
-from fitstiff.terms import TERMS, Modulation, Step, Term
+from fitstiff.terms import (TERMS, Chamber, ForceSource, InputTerm, Modifier, Modulation,
+                            SeriesTerm, Step, Term)
 
-__all__ = ["Model", "Prediction", "build_model", "parse_spec", "model_for_logs"]
+__all__ = ["Model", "Needs", "Prediction", "build_model", "parse_spec", "model_for_logs",
+           "model_needs"]
 
 _NEWTON_STEPS = 4
 
@@ -76,13 +78,11 @@ class Model(eqx.Module):
     terms: tuple[Term, ...]
 
     def __check_init__(self):
-        kinds = [t.kind for t in self.terms]
         names = [t.name for t in self.terms]
         spec = "+".join(names)
-        for t in self.terms:
-            if t.kind == "modifier" and t.targets not in kinds:
-                wanted = ("a friction base (dahl, lugre, maxwell_slip or coulomb)"
-                          if t.targets == "friction" else "the chamber term")
+        for t in self.terms_of(Modifier):
+            if not self.terms_of(t.targets):
+                wanted = t.targets.described
                 raise InputError(None, f"model spec '{spec}'",
                                  f"'{t.name}' modifies {wanted} but the model has none",
                                  f"add {wanted}")
@@ -90,7 +90,7 @@ class Model(eqx.Module):
             raise InputError(None, f"model spec '{spec}'",
                              "'lugre' already contains the Stribeck curve (Fs, vs)",
                              "drop 'stribeck'")
-        if not any(k in ("chamber", "friction", "force") for k in kinds):
+        if not self.terms_of(ForceSource):
             raise InputError(None, f"model spec '{spec}'", "has no term that gives a force",
                              "add chamber, a friction base or a force term")
 
@@ -126,24 +126,26 @@ class Model(eqx.Module):
     def has(self, name: str) -> bool:
         return name in self.names
 
-    def of_kind(self, *kinds: str) -> list[Term]:
-        return [t for t in self.terms if t.kind in kinds]
+    def terms_of(self, *roles: type[Term]) -> list[Term]:
+        """The terms that are instances of any of ``roles`` (e.g. ``FrictionBase``), in
+        order."""
+        return [t for t in self.terms if isinstance(t, roles)]
 
     @property
     def force_names(self) -> tuple[str, ...]:
         """Names of the terms whose forces :meth:`contributions` returns (in order)."""
-        return tuple(t.name for t in self.of_kind("chamber", "friction", "force"))
+        return tuple(t.name for t in self.terms_of(ForceSource))
 
     @property
     def needs_chamber(self) -> bool:
         """Whether drives need the rig values of the chamber force."""
-        return self.has("chamber")
+        return bool(self.terms_of(Chamber))
 
     # -- evaluation -------------------------------------------------------------------------
     def steps(self, drive: Drive) -> Step:
         """Per-sample scan inputs (after input terms such as the time delay)."""
         x = drive.displacement
-        for term in self.of_kind("input"):
+        for term in self.terms_of(InputTerm):
             x = term.transform_input(drive, x)
         t = drive.time
         dt, dt_mid = time_steps(t)
@@ -177,19 +179,19 @@ class Model(eqx.Module):
         stepped in the ``lax.scan``. The results are the same; the scan body is smaller (under
         ``vmap`` over the posterior's walkers its per-step cost dominates).
         """
-        modifiers = self.of_kind("modifier")
-        forcing = self.of_kind("chamber", "friction", "force")
-        series = self.of_kind("series")
+        modifiers = self.terms_of(Modifier)
+        forcing = self.terms_of(ForceSource)
+        series = self.terms_of(SeriesTerm)
         steps = self.steps(drive)
-        targeted = {m.targets for m in modifiers}
+        targeted = tuple(m.targets for m in modifiers)
         direct = {}
         if not series:
             for i, term in enumerate(forcing):
-                out = None if term.kind in targeted else term.run_all(steps, drive)
+                out = None if isinstance(term, targeted) else term.run_all(steps, drive)
                 if out is not None:
                     direct[i] = out
         scanned = [t for i, t in enumerate(forcing) if i not in direct]
-        chamber = next((t for t in scanned if t.kind == "chamber"), None)
+        chamber = next((t for t in scanned if isinstance(t, Chamber)), None)
 
         def evaluate(states, s):
             mod_states, force_states = states
@@ -242,7 +244,7 @@ class Model(eqx.Module):
             columns = {forcing.index(t): stepped[:, k] for k, t in enumerate(scanned)}
         for i, (states, force) in direct.items():
             columns[i] = jnp.broadcast_to(force, (n,))
-            if forcing[i].kind == "chamber":
+            if isinstance(forcing[i], Chamber):
                 p_a, p_b = forcing[i].pressures(states, steps, drive)
         forces = jnp.stack([columns[i] for i in range(len(forcing))], axis=1)
         return Prediction(force=jnp.sum(forces, axis=1) + drive.force_offset,
@@ -269,11 +271,25 @@ def build_model(spec: str, *, drives: Sequence[Drive] = ()) -> Model:
                        for name, arg in parse_spec(spec)))
 
 
+class Needs(NamedTuple):
+    """The rig data a model's terms declare they need (:class:`~fitstiff.terms.base.Term`)."""
+
+    chamber_geometry: bool   # the chamber's rig values (bore; stroke, start, supply if closed)
+    acceleration: bool       # an acceleration (smoothed when the displacement is denoised)
+
+
+def model_needs(model: str | Model) -> Needs:
+    """What the terms of ``model`` (a spec string or a built model) need of the rig data."""
+    terms = (model.terms if isinstance(model, Model)
+             else [TERMS[name] for name, _ in parse_spec(model)])
+    return Needs(chamber_geometry=any(t.needs_chamber_geometry for t in terms),
+                 acceleration=any(t.needs_acceleration for t in terms))
+
+
 def model_for_logs(spec: str, logs: Sequence[Log], *, still=None) -> tuple[Model, list[Drive]]:
     """The model of ``spec`` and one drive per log, checking the rig values it needs."""
-    names = [name for name, _ in parse_spec(spec)]
-    needs = "chamber" in names or "pressure_friction" in names
-    drives = [drive_from_log(log, needs_chamber=needs,
+    needs = model_needs(spec)
+    drives = [drive_from_log(log, needs_chamber=needs.chamber_geometry,
                              still=None if still is None else still[i],
                              what=f"model '{spec}'") for i, log in enumerate(logs)]
     return build_model(spec, drives=drives), drives

@@ -53,6 +53,7 @@ from fitstiff.log import Log, Rig
 from fitstiff.model import Model
 from fitstiff.segmentation import REGIONS, Segmentation
 from fitstiff.stiffness import MM, chamber_stiffness, table_positions
+from fitstiff.terms import FrictionBase
 
 if TYPE_CHECKING:
     from fitstiff.fitting import FitResult
@@ -442,7 +443,7 @@ def contributions_over_stroke(model: Model, rig: Rig, *, displacement_mm: float 
         n: polytropic exponent; default the model's (needed when its chamber used measured
             pressures, so that ``n`` was not fitted).
     """
-    if not model.has("chamber") or not model.of_kind("friction"):
+    if not model.has("chamber") or not model.terms_of(FrictionBase):
         raise InputError(None, f"model '{model.spec}'", "needs a chamber term and a friction base",
                          "use a model such as chamber+dahl")
     chamber = model.term("chamber")

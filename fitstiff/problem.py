@@ -36,9 +36,10 @@ from fitstiff.drive import Drive, drive_from_log
 from fitstiff.errors import InputError
 from fitstiff.guards import check_logs
 from fitstiff.log import Log
-from fitstiff.model import Model, build_model, difference_acceleration, parse_spec, time_steps
+from fitstiff.model import Model, build_model, difference_acceleration, model_needs, time_steps
 from fitstiff.params import Parameterization, find_param, named_params
 from fitstiff.segmentation import REGIONS, Segmentation, estimate_noise, segment
+from fitstiff.terms import FrictionBase
 
 __all__ = ["Problem", "NUISANCES", "OPTIONAL_NUISANCES", "PROBLEM_OPTIONS", "ResidualSeries",
            "channel_noise"]
@@ -126,13 +127,12 @@ class Problem:
         check_logs(self.logs)
         self.segmentations: list[Segmentation] = _segmentations(self.logs, segmentations)
         spec = model if isinstance(model, str) else model.spec
-        names = [n for n, _ in parse_spec(spec)]
-        needs = "chamber" in names or "pressure_friction" in names
+        needs = model_needs(model)
         self.displacement_noise = [s.noise for s in self.segmentations]
         self.denoised = [self._want_denoise(denoise, s) for s in self.segmentations]
         self.drives: list[Drive] = []
         for log, seg, den in zip(self.logs, self.segmentations, self.denoised):
-            drive = drive_from_log(log, needs_chamber=needs, still=seg.still,
+            drive = drive_from_log(log, needs_chamber=needs.chamber_geometry, still=seg.still,
                                    what=f"model '{spec}'",
                                    needs_supply="closing_pressure" not in free)
             if den:
@@ -141,7 +141,7 @@ class Problem:
                 if log.time is not None:
                     v = segment_velocity(x, log.time, seg.reversals, noise=seg.noise)
                     a = (smooth_acceleration(log.displacement, log.time, noise=seg.noise)
-                         if "inertia" in names else None)
+                         if needs.acceleration else None)
                     drive = dataclasses.replace(drive, velocity=jnp.asarray(v),
                                                 acceleration=None if a is None
                                                 else jnp.asarray(a))
@@ -158,7 +158,7 @@ class Problem:
             built = Parameterization(built).with_values(built, model_values, where="--fix")
         self.model = built
         self.par = Parameterization(built, fixed=model_fixed)
-        self.has_friction = bool(built.of_kind("friction"))
+        self.has_friction = bool(built.terms_of(FrictionBase))
         closed = any("closed" in d.modes for d in self.drives) and built.has("chamber")
         if "closing_pressure" in free and not closed:
             raise InputError(None, "--free closing_pressure",

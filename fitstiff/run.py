@@ -49,6 +49,7 @@ from fitstiff.output import sha256_file
 from fitstiff.params import find_param
 from fitstiff.posterior import PREDICTIVE, Posterior, PosteriorRecord
 from fitstiff.problem import NUISANCES, PROBLEM_OPTIONS, Problem
+from fitstiff.terms import FrictionBase
 
 __all__ = ["MANIFEST", "RESULT_FILES", "Chain", "Curves", "RunDirectory", "fit_curves",
            "open_run", "posterior_curves", "read_chain", "read_json", "term_labels"]
@@ -225,7 +226,7 @@ class Curves:
 
 
 def term_labels(model: Model) -> list[str]:
-    return [f"seal ({n})" if model.term(n).kind == "friction" else n for n in model.force_names]
+    return [f"seal ({n})" if isinstance(model.term(n), FrictionBase) else n for n in model.force_names]
 
 
 def fit_curves(run: RunDirectory) -> Curves:

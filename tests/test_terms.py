@@ -13,7 +13,7 @@ from fitstiff.drive import make_drive
 from fitstiff.errors import InputError
 from fitstiff.model import build_model, parse_spec
 from fitstiff.params import Parameterization
-from fitstiff.terms import EFFECTS, TERMS
+from fitstiff.terms import EFFECTS, ROLES, TERMS, Chamber, FrictionBase, Modifier
 
 
 def run(spec, t, x, *, values=None, rig=None, **drive_kw):
@@ -404,6 +404,26 @@ def test_every_canonical_name_is_a_term():
     assert set(EFFECTS) <= set(TERMS)
     assert [n for n, _ in parse_spec("chamber+maxwell_slip:4+viscous")] == [
         "chamber", "maxwell_slip", "viscous"]
+
+
+@pytest.mark.parametrize("token", [*TERMS, "rig_compliance:measured", "chamber:gated"])
+def test_every_term_has_exactly_one_role(token):
+    """Each term is an instance of one role base, and a modifier's target role must be in the
+    model: without it the model is refused with the message that names the role."""
+    name, _, arg = token.partition(":")
+    term = TERMS[name].from_spec(arg or None)
+    assert len([r for r in ROLES if isinstance(term, r)]) == 1
+    if isinstance(term, Modifier):
+        assert term.targets in ROLES
+        host = next(c for c in TERMS.values() if issubclass(c, term.targets)).name
+        assert isinstance(build_model(f"{host}+{token}").term(host), term.targets)
+        wanted = {FrictionBase: "a friction base (dahl, lugre, maxwell_slip or coulomb)",
+                  Chamber: "the chamber term"}[term.targets]
+        other = "viscous" if term.targets is Chamber else "chamber"
+        with pytest.raises(InputError) as info:
+            build_model(f"{other}+{token}")
+        assert str(info.value) == (f"model spec '{other}+{name}': '{name}' modifies {wanted} "
+                                   f"but the model has none; add {wanted}")
 
 
 def test_an_ordered_vector_is_checked_once_all_its_elements_are_set():

@@ -32,7 +32,7 @@ from fitstiff.lm import CONVERGED, levenberg_marquardt
 from fitstiff.log import Log
 from fitstiff.model import parse_spec
 from fitstiff.problem import Problem
-from fitstiff.terms import EFFECTS, FRICTION_BASES
+from fitstiff.terms import EFFECTS, FRICTION_BASES, TERMS
 
 __all__ = ["CANDIDATES", "SuperProblem", "candidate_names", "spec_token"]
 
@@ -117,7 +117,7 @@ def _not_applicable(name: str, base: list[str], logs: Sequence[Log]):
     if name in _NEEDS_CHAMBER and "chamber" not in base:
         return (f"'{name}' modifies the chamber term and the baseline has none",
                 "add 'chamber' to the baseline")
-    if name in ("chamber", "pressure_friction") and logs:
+    if TERMS[name].needs_chamber_geometry and logs:
         for log in logs:
             has_pressure = (log.rig.supply_pressure is not None or log.pressure_a is not None
                             or log.pressure_b is not None)

@@ -1,6 +1,7 @@
-"""Model terms by canonical name (DESIGN §3). See :mod:`fitstiff.terms.base` for the protocol."""
+"""Model terms by canonical name (DESIGN §3). See :mod:`fitstiff.terms.base` for the roles."""
 
-from fitstiff.terms.base import KINDS, Modulation, Step, Term
+from fitstiff.terms.base import (ForceSource, ForceTerm, FrictionBase, InputTerm, Modifier,
+                                 Modulation, SeriesTerm, Step, Term)
 from fitstiff.terms.chamber import Chamber
 from fitstiff.terms.forces import ForceDrift, Inertia, Viscous
 from fitstiff.terms.friction import Coulomb, Dahl, LuGre, MaxwellSlip
@@ -8,14 +9,20 @@ from fitstiff.terms.measurement import RigCompliance, TimeDelay
 from fitstiff.terms.modifiers import (Asymmetry, DwellStiction, HeatTransfer, Leakage,
                                       PressureFriction, Stribeck)
 
-__all__ = ["KINDS", "TERMS", "EFFECTS", "FRICTION_BASES", "Modulation", "Step", "Term"]
+__all__ = ["ROLES", "TERMS", "EFFECTS", "FRICTION_BASES", "Chamber", "ForceSource",
+           "ForceTerm", "FrictionBase", "InputTerm", "Modifier", "Modulation", "SeriesTerm",
+           "Step", "Term"]
+
+#: the role bases; every term is an instance of exactly one
+ROLES: tuple[type[Term], ...] = (Chamber, FrictionBase, ForceTerm, Modifier, InputTerm,
+                                 SeriesTerm)
 
 #: every term class by its canonical name
 TERMS: dict[str, type[Term]] = {cls.name: cls for cls in (
     Chamber, Dahl, LuGre, MaxwellSlip, Coulomb, Viscous, Stribeck, Asymmetry, PressureFriction,
     DwellStiction, HeatTransfer, Leakage, Inertia, ForceDrift, TimeDelay, RigCompliance)}
 
-FRICTION_BASES = tuple(n for n, c in TERMS.items() if c.kind == "friction")
+FRICTION_BASES = tuple(n for n, c in TERMS.items() if issubclass(c, FrictionBase))
 
 #: the effects the diagnosis can add to a baseline (DESIGN §3 table)
 EFFECTS = ("viscous", "stribeck", "asymmetry", "pressure_friction", "dwell_stiction",

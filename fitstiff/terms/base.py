@@ -1,21 +1,29 @@
-"""What every model term is: an immutable JAX module with physical parameters and a step.
+"""What every model term is: an immutable JAX module with physical parameters and a role.
 
 A model is a sum of terms (``chamber+dahl+viscous``). The composition
 (:mod:`fitstiff.model`) runs the terms together in one ``lax.scan`` over the samples of a
-:class:`~fitstiff.drive.Drive`; terms that need no scan (:meth:`Term.run_all`: stateless ones,
-the polytropic chamber) are evaluated over all samples at once. Terms come in five kinds:
+:class:`~fitstiff.drive.Drive`; force sources that need no scan
+(:meth:`ForceSource.run_all`: stateless ones, the polytropic chamber) are evaluated over all
+samples at once. Every term is an instance of exactly one role, an abstract base class whose
+methods are what the composition calls on it:
 
-``chamber``   the gas spring; its step returns the chamber force.
-``friction``  a seal-friction base (Dahl, LuGre, Maxwell-slip, Coulomb); its step returns the
-              friction force and honours the level / slope factors of the modifiers.
-``force``     any other additive force (viscous, inertia, force drift).
-``modifier``  changes another term rather than adding a force: it returns a
+:class:`~fitstiff.terms.chamber.Chamber`  the gas spring; its step returns the chamber force.
+:class:`FrictionBase`  a seal-friction base (Dahl, LuGre, Maxwell-slip, Coulomb); its step
+              returns the friction force and honours the level / slope factors of the
+              modifiers; it starts from the data (:meth:`FrictionBase.start`).
+:class:`ForceTerm`  any other additive force (viscous, inertia, force drift).
+:class:`Modifier`  changes another term rather than adding a force: it returns a
               :class:`Modulation` every step (friction level and slope factors for
               Stribeck, asymmetry, pressure-dependent and dwell-dependent friction; heat and
-              leak rates for the chamber).
-``input``     transforms the measured displacement before the scan (time delay).
-``series``    a compliance between the displacement sensor and the piston (rig compliance);
-              the composition solves for the piston motion every step.
+              leak rates for the chamber); :attr:`Modifier.targets` is the role it acts on.
+:class:`InputTerm`  transforms the measured displacement before the scan (time delay).
+:class:`SeriesTerm`  a compliance between the displacement sensor and the piston (rig
+              compliance); the composition solves for the piston motion every step.
+
+The first three are force sources (:class:`ForceSource`): each gives one column of
+:meth:`fitstiff.model.Model.contributions`. Terms also declare the rig data they need
+(:attr:`Term.needs_chamber_geometry`, :attr:`Term.needs_acceleration`; see
+:func:`fitstiff.model.model_needs`).
 
 Parameters live in the fields, in SI units; bounds, display units and transforms are declared
 by :meth:`Term.params` and applied by :mod:`fitstiff.params`, never inside the physics.
@@ -23,16 +31,16 @@ by :meth:`Term.params` and applied by :mod:`fitstiff.params`, never inside the p
 
 from __future__ import annotations
 
+import abc
 from typing import Any, ClassVar, NamedTuple
 
 import equinox as eqx
 
-from fitstiff._jax import jax, jnp
+from fitstiff._jax import jax
 from fitstiff.params import Param
 
-__all__ = ["FrictionEstimate", "Modulation", "Step", "Term", "KINDS"]
-
-KINDS = ("chamber", "friction", "force", "modifier", "input", "series")
+__all__ = ["ForceSource", "ForceTerm", "FrictionBase", "FrictionEstimate", "InputTerm",
+           "Modifier", "Modulation", "SeriesTerm", "Step", "Term"]
 
 
 class Step(NamedTuple):
@@ -84,7 +92,7 @@ class Modulation(NamedTuple):
 class FrictionEstimate(NamedTuple):
     """What the data say about the seal before any fit (see
     :func:`fitstiff.fitting.initial_guess`); friction bases start from it
-    (:meth:`Term.start`).
+    (:meth:`FrictionBase.start`).
 
     ``level``: sliding friction level (N), half the spread of the sliding force plateaus with
     the chamber force removed; ``tangent``: slope of the friction force right after the
@@ -98,17 +106,25 @@ class FrictionEstimate(NamedTuple):
 
 
 class Term(eqx.Module):
-    """Base class. Subclasses set ``name``, ``kind`` and implement what their kind needs."""
+    """Base class of every term. A term subclasses one role (:class:`ForceTerm`,
+    :class:`FrictionBase`, :class:`~fitstiff.terms.chamber.Chamber`, :class:`Modifier`,
+    :class:`InputTerm`, :class:`SeriesTerm`), sets ``name`` and implements what its role
+    needs."""
 
     name: ClassVar[str] = ""
-    kind: ClassVar[str] = "force"
-    #: for modifiers: the kind of term they act on ("friction" or "chamber")
-    targets: ClassVar[str | None] = None
     #: one line for --help and docs
     summary: ClassVar[str] = ""
     #: effects: the excitation that makes the effect testable (the diagnosis says to record it
     #: when the logs cannot test the effect)
     excitation: ClassVar[str] = ""
+    #: the drives need the chamber's rig values (bore; stroke, start position and supply
+    #: pressure for a closed chamber)
+    needs_chamber_geometry: ClassVar[bool] = False
+    #: the term uses the acceleration (a smoothed one is built when the displacement is
+    #: denoised)
+    needs_acceleration: ClassVar[bool] = False
+    #: roles that modifiers act on: how messages name the role ("'stribeck' modifies ...")
+    described: ClassVar[str] = ""
 
     @classmethod
     def from_spec(cls, arg: str | None, *, drives=()) -> Term:
@@ -129,9 +145,14 @@ class Term(eqx.Module):
         """Scan state at the first sample (a pytree; ``()`` for stateless terms)."""
         return ()
 
+
+class ForceSource(Term):
+    """A term that gives a force every step: one column of the model's contributions (the
+    chamber, the friction bases, the additive forces)."""
+
+    @abc.abstractmethod
     def step(self, state, s: Step, drive, mod: Modulation):
         """One sample: ``(new_state, force_N)``. Forces are + toward the B cap."""
-        raise NotImplementedError
 
     def run_all(self, steps: Step, drive):
         """All samples at once, outside the scan: ``(states, forces)`` with a leading sample
@@ -146,30 +167,59 @@ class Term(eqx.Module):
             return None
         return jax.vmap(lambda s: self.step((), s, drive, Modulation()))(steps)
 
-    def start(self, estimate: FrictionEstimate, *, share: float = 1.0) -> Term:
-        """This term with data-driven starting values (friction bases carry ``share`` of the
-        estimated friction; several bases split it). Other terms keep their values: effects
-        start where they are (their defaults, or their null value in the diagnosis)."""
-        return self
 
-    def modulate(self, state, s: Step, drive):
-        """Modifiers: ``(new_state, Modulation)``."""
-        raise NotImplementedError
+class ForceTerm(ForceSource):
+    """Role: an additive force other than the chamber and the seal (viscous, inertia, force
+    drift)."""
 
-    def transform_input(self, drive, x):
-        """Input terms: the displacement the model should see, given the measured ``x``."""
-        raise NotImplementedError
 
-    # -- derived quantities, friction bases -------------------------------------------------
+class FrictionBase(ForceSource):
+    """Role: a seal-friction base. Its step honours the modifiers' level and slope factors."""
+
+    described = "a friction base (dahl, lugre, maxwell_slip or coulomb)"
+
+    @abc.abstractmethod
+    def start(self, estimate: FrictionEstimate, *, share: float = 1.0) -> FrictionBase:
+        """This base with data-driven starting values carrying ``share`` of the estimated
+        friction (several bases split it). Other terms keep their values: effects start where
+        they are (their defaults, or their null value in the diagnosis)."""
+
+    @abc.abstractmethod
     def presliding_slope(self):
         """Slope (N/m) of the friction force right after a reversal."""
-        return jnp.nan
 
+    @abc.abstractmethod
     def breakaway(self):
         """Largest friction force (N) the seal holds before gross sliding."""
-        return jnp.nan
+
+
+class Modifier(Term):
+    """Role: changes the terms of role :attr:`targets` instead of adding a force."""
+
+    #: the role of the terms it acts on (:class:`FrictionBase` or
+    #: :class:`~fitstiff.terms.chamber.Chamber`); a model with the modifier needs one
+    targets: ClassVar[type[Term]]
+
+    @abc.abstractmethod
+    def modulate(self, state, s: Step, drive):
+        """``(new_state, Modulation)``."""
 
     def reference_level(self):
-        """Modifiers: friction level factor at the reference condition (low speed, reference
-        pressure, no dwell, direction-averaged)."""
+        """Friction level factor at the reference condition (low speed, reference pressure,
+        no dwell, direction-averaged)."""
         return 1.0
+
+
+class InputTerm(Term):
+    """Role: transforms the measured displacement before the scan."""
+
+    @abc.abstractmethod
+    def transform_input(self, drive, x):
+        """The displacement the model should see, given the measured ``x``."""
+
+
+class SeriesTerm(Term):
+    """Role: a spring in series between the displacement sensor and the piston; the
+    composition solves ``x_piston = x_sensor - compliance * F_model`` every step."""
+
+    compliance: eqx.AbstractVar[float]

@@ -19,14 +19,17 @@ import equinox as eqx
 from fitstiff import gas_spring
 from fitstiff._jax import jnp
 from fitstiff.params import Param
-from fitstiff.terms.base import Modulation, Step, Term
+from fitstiff.terms.base import ForceSource, Modulation, Step
 
 __all__ = ["Chamber"]
 
 
-class Chamber(Term):
+class Chamber(ForceSource):
+    """Role and term: the gas spring (the chamber modifiers' target)."""
+
     name = "chamber"
-    kind = "chamber"
+    described = "the chamber term"
+    needs_chamber_geometry = True
     summary = "closed-chamber gas spring (measured pressures if logged, else polytropic, n fitted)"
     excitation = "closed chambers and motion of a millimetre or more, best at several positions or pressures"
 

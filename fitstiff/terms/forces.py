@@ -6,14 +6,13 @@ import numpy as np
 
 from fitstiff._jax import jnp
 from fitstiff.params import Param
-from fitstiff.terms.base import Modulation, Step, Term
+from fitstiff.terms.base import ForceTerm, Modulation, Step
 
 __all__ = ["ForceDrift", "Inertia", "Viscous"]
 
 
-class Viscous(Term):
+class Viscous(ForceTerm):
     name = "viscous"
-    kind = "force"
     summary = "viscous friction c v"
     excitation = "logs at two or more clearly different speeds (e.g. 1 and 20 mm/s)"
 
@@ -26,9 +25,9 @@ class Viscous(Term):
         return state, self.c * s.v
 
 
-class Inertia(Term):
+class Inertia(ForceTerm):
     name = "inertia"
-    kind = "force"
+    needs_acceleration = True
     summary = "m a of the moving mass"
     excitation = "motion with acceleration: sine sweeps or fast reversals (the force of m a must exceed the noise)"
 
@@ -41,9 +40,8 @@ class Inertia(Term):
         return state, self.mass * s.a
 
 
-class ForceDrift(Term):
+class ForceDrift(ForceTerm):
     name = "force_drift"
-    kind = "force"
     summary = "slow linear drift of the force channel's offset"
     excitation = "a longer log, or pauses spread over it, so a slow offset change shows against the noise"
 

@@ -23,7 +23,7 @@ import numpy as np
 from fitstiff._jax import jnp
 from fitstiff.errors import InputError
 from fitstiff.params import Param
-from fitstiff.terms.base import FrictionEstimate, Modulation, Step, Term
+from fitstiff.terms.base import FrictionBase, FrictionEstimate, Modulation, Step
 
 __all__ = ["Coulomb", "Dahl", "LuGre", "MaxwellSlip"]
 
@@ -35,9 +35,8 @@ def _direction(dx):
     return jnp.sign(dx)
 
 
-class Dahl(Term):
+class Dahl(FrictionBase):
     name = "dahl"
-    kind = "friction"
     summary = "Dahl pre-sliding friction (sigma0, Fc; 'dahl:alpha' also fits the shape exponent)"
 
     sigma0: float = 40e3
@@ -101,9 +100,8 @@ def _sigma0_start(estimate: FrictionEstimate) -> float | None:
     return estimate.tangent / (1.0 + estimate.reversal_state)
 
 
-class LuGre(Term):
+class LuGre(FrictionBase):
     name = "lugre"
-    kind = "friction"
     summary = "LuGre friction (sigma0, sigma1, Fc, Fs, vs); viscous sigma2 v is the 'viscous' term"
 
     sigma0: float = 40e3
@@ -147,9 +145,8 @@ class LuGre(Term):
         return self.Fs
 
 
-class MaxwellSlip(Term):
+class MaxwellSlip(FrictionBase):
     name = "maxwell_slip"
-    kind = "friction"
     summary = "Maxwell-slip: N elasto-slide elements (k_i, slip displacement delta_i); 'maxwell_slip:N'"
     excitation = "nested minor loops (a small reversal inside a larger loop) or triangles of several amplitudes"
 
@@ -210,9 +207,8 @@ class MaxwellSlip(Term):
         return jnp.sum(self.slip_forces)
 
 
-class Coulomb(Term):
+class Coulomb(FrictionBase):
     name = "coulomb"
-    kind = "friction"
     summary = "static Coulomb friction Fc sgn(v) (no pre-sliding: infinite slope)"
 
     Fc: float = 18.0

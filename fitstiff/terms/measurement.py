@@ -13,14 +13,13 @@ import numpy as np
 
 from fitstiff._jax import jnp
 from fitstiff.params import Param
-from fitstiff.terms.base import Term
+from fitstiff.terms.base import InputTerm, SeriesTerm, Term
 
 __all__ = ["MeasuredForceCompliance", "RigCompliance", "TimeDelay"]
 
 
-class TimeDelay(Term):
+class TimeDelay(InputTerm):
     name = "time_delay"
-    kind = "input"
     summary = "the force channel lags the displacement channel"
     excitation = "a time column and fast reversals or a sine sweep (the lag shows where the force changes quickly)"
 
@@ -35,26 +34,29 @@ class TimeDelay(Term):
         return jnp.interp(drive.time - self.delay, drive.time, x)
 
 
-class RigCompliance(Term):
+class _Compliance(Term):
+    """The rig's series spring, whichever way the model applies it."""
+
     name = "rig_compliance"
-    kind = "series"
     summary = "a spring in series between the displacement sensor and the piston"
     excitation = "reversals in the pre-sliding range (small-amplitude loops), where the seal is stiffest"
 
     compliance: float = 1e-6
-
-    @classmethod
-    def from_spec(cls, arg, *, drives=()):
-        if arg == "measured":
-            return MeasuredForceCompliance()
-        return super().from_spec(arg)
 
     def params(self):
         return (Param("compliance", "mm/N", 1e-3, 0.0, np.inf,
                       "series compliance of the rig (1 / rig stiffness)", null=0.0),)
 
 
-class MeasuredForceCompliance(RigCompliance):
+class RigCompliance(_Compliance, SeriesTerm):
+    @classmethod
+    def from_spec(cls, arg, *, drives=()):
+        if arg == "measured":
+            return MeasuredForceCompliance()
+        return super().from_spec(arg)
+
+
+class MeasuredForceCompliance(_Compliance, InputTerm):
     """``rig_compliance:measured``: the same series spring, with the piston displacement
     taken as ``x_sensor - compliance * F_measured`` (the logged force as an input) instead of
     solving ``x_piston = x_sensor - compliance * F_model`` every step. Equal up to the force
@@ -62,8 +64,6 @@ class MeasuredForceCompliance(RigCompliance):
     to the piston motion, so the rest of the model keeps its all-samples evaluation. The
     diagnosis screens and refits the effect this way; the simulator uses the series form.
     """
-
-    kind = "input"
 
     def transform_input(self, drive, x):
         if drive.measured_force is None:

@@ -13,16 +13,16 @@ import numpy as np
 
 from fitstiff._jax import jnp
 from fitstiff.params import Param
-from fitstiff.terms.base import Modulation, Step, Term
+from fitstiff.terms.base import FrictionBase, Modifier, Modulation, Step
+from fitstiff.terms.chamber import Chamber
 
 __all__ = ["Asymmetry", "DwellStiction", "HeatTransfer", "Leakage", "PressureFriction",
            "Stribeck"]
 
 
-class Stribeck(Term):
+class Stribeck(Modifier):
     name = "stribeck"
-    kind = "modifier"
-    targets = "friction"
+    targets = FrictionBase
     summary = "friction level falls from Fs = ratio * Fc at rest to Fc with speed"
     excitation = "slow (below 1 mm/s) and fast (above 10 mm/s) sliding in the same or comparable logs"
 
@@ -41,10 +41,9 @@ class Stribeck(Term):
         return self.stribeck_ratio
 
 
-class Asymmetry(Term):
+class Asymmetry(Modifier):
     name = "asymmetry"
-    kind = "modifier"
-    targets = "friction"
+    targets = FrictionBase
     summary = "friction level (and slope) differ between the two directions"
     excitation = "sliding in both directions (full loops, not one-way ramps)"
 
@@ -66,10 +65,10 @@ class Asymmetry(Term):
                                      slope=1.0 + self.slope_asym * direction)
 
 
-class PressureFriction(Term):
+class PressureFriction(Modifier):
     name = "pressure_friction"
-    kind = "modifier"
-    targets = "friction"
+    needs_chamber_geometry = True
+    targets = FrictionBase
     summary = "friction level rises with chamber pressure: exp(beta (p - p_ref))"
     excitation = "logs at two or more supply pressures, or a logged chamber pressure that varies"
 
@@ -97,10 +96,9 @@ class PressureFriction(Term):
         return state, Modulation(level=jnp.exp(self.beta * (p_seal - drive.p_amb - self.p_ref)))
 
 
-class DwellStiction(Term):
+class DwellStiction(Modifier):
     name = "dwell_stiction"
-    kind = "modifier"
-    targets = "friction"
+    targets = FrictionBase
     summary = "extra breakaway after a standstill, growing with its duration"
     excitation = "pauses (standstills of 0.2 s or more, better several of different lengths) followed by motion"
 
@@ -128,10 +126,9 @@ class DwellStiction(Term):
         return (t_dwell, travel, s.still), Modulation(level=1.0 + extra)
 
 
-class HeatTransfer(Term):
+class HeatTransfer(Modifier):
     name = "heat_transfer"
-    kind = "modifier"
-    targets = "chamber"
+    targets = Chamber
     summary = "gas-wall heat exchange: rate-dependent stiffness between adiabatic and isothermal"
     excitation = "closed chambers moved at two or more clearly different rates (or with pauses after a stroke), with the chamber pressures logged"
 
@@ -145,10 +142,9 @@ class HeatTransfer(Term):
         return state, Modulation(heat_rate=self.heat_rate)
 
 
-class Leakage(Term):
+class Leakage(Modifier):
     name = "leakage"
-    kind = "modifier"
-    targets = "chamber"
+    targets = Chamber
     summary = "the pressure difference across the piston relaxes (leak past the seal)"
     excitation = "closed chambers held displaced for seconds (pauses away from the start), with the chamber pressures logged"
 
