@@ -18,7 +18,8 @@
 =============================== ==============================================================
 
 All are JAX expressions of the model's fields, so standard errors can be propagated by
-autodiff.
+autodiff. Their display units are fixed by their names' suffixes (one table here:
+:func:`split_unit`, :func:`to_display`).
 """
 
 from __future__ import annotations
@@ -30,12 +31,13 @@ from fitstiff._jax import jnp
 from fitstiff.drive import make_drive
 from fitstiff.terms.base import FrictionBase, Modifier, Modulation
 
-__all__ = ["DERIVED", "derived_quantities", "presliding_curve", "split_unit"]
+__all__ = ["DERIVED", "derived_quantities", "presliding_curve", "split_unit", "to_display"]
 
 DERIVED = ("presliding_slope_N_per_mm", "breakaway_N", "presliding_range_mm",
            "chamber_stiffness_N_per_mm", "total_stiffness_N_per_mm")
 
-_UNIT_SUFFIXES = (("_N_per_mm", "N/mm"), ("_mm", "mm"), ("_N", "N"))
+#: name suffix -> (display unit, display per SI: ``display = SI * factor``)
+_UNIT_SUFFIXES = (("_N_per_mm", "N/mm", 1e-3), ("_mm", "mm", 1e3), ("_N", "N", 1.0))
 _SWING = 0.95
 _SAMPLES = 4001
 _QUASI_STATIC_SPEED = 1e-6  # m/s
@@ -55,10 +57,19 @@ class _Level(Modifier):
 def split_unit(name: str) -> tuple[str, str]:
     """A derived quantity's label and display unit from its name's unit suffix:
     ``"breakaway_N"`` -> ``("breakaway", "N")``; ``("name", "")`` without a known suffix."""
-    for suffix, unit in _UNIT_SUFFIXES:
+    for suffix, unit, _ in _UNIT_SUFFIXES:
         if name.endswith(suffix):
             return name[: -len(suffix)], unit
     return name, ""
+
+
+def to_display(name: str, si):
+    """The SI value(s) of the derived quantity ``name`` in its display unit (the unit its
+    name ends in: ``_N_per_mm``, ``_mm``, ``_N``); ``KeyError`` for a name without one."""
+    for suffix, _, factor in _UNIT_SUFFIXES:
+        if name.endswith(suffix):
+            return si * factor
+    raise KeyError(name)
 
 
 def _reference(model):
@@ -128,12 +139,9 @@ def derived_quantities(model, drive=None) -> dict[str, jnp.ndarray]:
         k_ch = model.term("chamber").stiffness(drive) if drive is not None else nan
     else:
         k_ch = jnp.asarray(0.0)
-    out = {
-        "presliding_slope_N_per_mm": jnp.asarray(slope) * 1e-3,
-        "breakaway_N": jnp.asarray(breakaway),
-        "presliding_range_mm": jnp.asarray(prange) * 1e3,
-        "chamber_stiffness_N_per_mm": jnp.asarray(k_ch) * 1e-3,
-    }
+    si = {"presliding_slope_N_per_mm": slope, "breakaway_N": breakaway,
+          "presliding_range_mm": prange, "chamber_stiffness_N_per_mm": k_ch}
+    out = {name: to_display(name, jnp.asarray(value)) for name, value in si.items()}
     out["total_stiffness_N_per_mm"] = (out["presliding_slope_N_per_mm"]
                                        + out["chamber_stiffness_N_per_mm"])
     return out

@@ -32,13 +32,14 @@ import optimistix as optx
 
 from fitstiff._jax import jax, jnp
 from fitstiff.derived import DERIVED, derived_quantities, split_unit
+from fitstiff.derived import to_display as derived_display
 from fitstiff import lm
 from fitstiff.errors import InputError
 from fitstiff.guards import check_finite
 from fitstiff.identifiability import Identifiability, assess_identifiability, reversal_travel
 from fitstiff.log import Log
 from fitstiff.model import Model
-from fitstiff.params import Parameterization, named_params
+from fitstiff.params import Parameterization, named_params, to_display, to_si
 from fitstiff.problem import Problem
 from fitstiff.terms.base import FrictionBase, FrictionEstimate, Modifier
 
@@ -95,7 +96,7 @@ class FitResult:
         names: free model-parameter names (flat), then nuisance names ``offset[log]`` ...
         values: SI values of ``names`` (nuisances: N for offsets, fraction for states).
         stderr: standard errors (SI); NaN where the data do not determine the parameter.
-        units, scales: display unit and SI-per-display factor of each model parameter.
+        units: display unit of each free model parameter (conversions: ``problem.par``).
         covariance: covariance of ``values`` (SI), after the autocorrelation inflation.
         derived: name -> ``(value, stderr)`` in engineering units (DESIGN §1.2), at the first
             log's operating point; ``per_log`` holds each log's chamber stiffness.
@@ -112,7 +113,6 @@ class FitResult:
     stderr: np.ndarray
     covariance: np.ndarray
     units: Mapping[str, str]
-    scales: Mapping[str, float]
     fixed: Mapping[str, float]
     derived: Mapping[str, tuple[float, float]]
     per_log: Sequence[Mapping[str, object]]
@@ -147,13 +147,13 @@ class FitResult:
     def parameters(self) -> dict[str, dict[str, object]]:
         """``name -> {value, stderr, unit}`` in display units (fit.json ``parameters``)."""
         out = {}
-        for i, name in enumerate(self.names[:self.n_model_params]):
-            s = self.scales[name]
-            out[name] = {"value": self.values[i] / s, "stderr": _finite(self.stderr[i] / s),
+        n = self.n_model_params
+        values, stderr = (self.problem.par.to_display(x[:n]) for x in (self.values, self.stderr))
+        for i, name in enumerate(self.names[:n]):
+            out[name] = {"value": values[i], "stderr": _finite(stderr[i]),
                          "unit": self.units[name]}
-        for name, value in self.fixed.items():
-            scale = self.problem.par_scale(name)
-            out[name] = {"value": value / scale, "stderr": None,
+        for name, value in to_display(self.problem.model, self.fixed).items():
+            out[name] = {"value": value, "stderr": None,
                          "unit": self.problem.par_unit(name), "fixed": True}
         return out
 
@@ -163,8 +163,8 @@ class FitResult:
         """The fitted ``theta`` of ``problem`` from a :meth:`to_dict` (``fit.json``): its free
         parameters (display units) and each log's fitted nuisances (``per_log``), exactly.
         ``problem`` must be the fit's (same logs, model and fixed values)."""
-        values = {name: p["value"] * problem.par_scale(name)
-                  for name, p in data["parameters"].items() if not p.get("fixed")}
+        values = to_si(problem.model, {name: p["value"] for name, p in data["parameters"].items()
+                                       if not p.get("fixed")}, where=where)
         model = problem.par.with_values(problem.model, values, where=where)
         nuisances = {name: [entry[key] * factor for entry in data["per_log"]]
                      for name, (key, factor) in PER_LOG_NUISANCES.items()
@@ -586,7 +586,8 @@ def _summarise(problem: Problem, theta, *, converged: bool, message: str, steps:
         res = (pred["force"] - np.asarray(log.force))[w]
         raw_sq += float(res @ res)
         raw_n += res.size
-        k_ch = (float(model.term("chamber").stiffness(problem.drives[i])) * 1e-3
+        k_ch = (derived_display("chamber_stiffness_N_per_mm",
+                                float(model.term("chamber").stiffness(problem.drives[i])))
                 if model.has("chamber") else 0.0)
         entry = {"name": log.name, "file": str(log.path) if log.path else None,
                  "samples": len(log), "rms_N": math.sqrt(float(res @ res) / max(res.size, 1)),
@@ -608,7 +609,7 @@ def _summarise(problem: Problem, theta, *, converged: bool, message: str, steps:
              if name in problem.par_fixed}
     return FitResult(
         model=model, names=tuple(names), values=values, stderr=stderr, covariance=cov,
-        units=problem.par.units(), scales=dict(zip(model_names, problem.par.scales())),
+        units=problem.par.units(),
         fixed=fixed, derived=derived, per_log=per_log, converged=converged, message=message,
         steps=steps, solver=solver, rms_N=math.sqrt(raw_sq / max(raw_n, 1)), cost=cost,
         n_data=n_data, n_params=n_par, aic=aic, bic=bic, residual_autocorrelation=rho,
@@ -760,11 +761,12 @@ def _implausible(problem: Problem, values: np.ndarray,
                 continue
             x = float(free[name])
             span = p.upper - p.lower if math.isfinite(p.upper - p.lower) else abs(x)
+            near = _AT_BOUND * max(span, p.to_si(1.0))   # a share of the span, or of one unit
             for bound, side in ((p.lower, "lower"), (p.upper, "upper")):
                 if p.null is not None and bound == p.null:
                     continue          # an effect at its null is simply absent
-                if math.isfinite(bound) and abs(x - bound) <= _AT_BOUND * max(span, p.scale):
-                    out.append(f"{name} sits at its {side} bound ({bound / p.scale:.4g} "
+                if math.isfinite(bound) and abs(x - bound) <= near:
+                    out.append(f"{name} sits at its {side} bound ({p.to_display(bound):.4g} "
                                f"{p.unit}): the logs do not hold it inside the model's range; "
                                "its value and standard error mean nothing (fix it, or record "
                                "the motion that determines it)")

@@ -5,6 +5,13 @@ Physics terms hold plain SI values in their fields; they know nothing about boun
 null value), and :class:`Parameterization` maps a model to one flat unconstrained vector and
 back, so the optimiser and the sampler see the same coordinates.
 
+This module is also the one boundary between SI and display units for model parameters:
+:meth:`Param.to_display` / :meth:`Param.to_si` for one parameter's value(s),
+:meth:`Parameterization.to_display` / :meth:`Parameterization.to_si` for flat vectors of the
+free parameters, :func:`to_display` / :func:`to_si` for values by flat name (free or fixed).
+Code elsewhere converts through these, not by :attr:`Param.scale` itself (the priors extend
+:meth:`Parameterization.scales` with the per-log nuisances' for their sampled vector).
+
 Transforms (``y`` unconstrained, ``x`` physical, SI):
 
 ============ ================================================= ==========================
@@ -28,7 +35,8 @@ import numpy as np
 from fitstiff._jax import jax, jnp
 from fitstiff.errors import InputError
 
-__all__ = ["Param", "Parameterization", "TRANSFORMS", "find_param", "named_params"]
+__all__ = ["Param", "Parameterization", "TRANSFORMS", "find_param", "named_params", "to_display",
+           "to_si"]
 
 TRANSFORMS = ("identity", "log", "logit", "ordered")
 
@@ -77,6 +85,16 @@ class Param:
             return [prefix]
         return [f"{prefix}_{i + 1}" for i in range(self.size)]
 
+    # -- units ----------------------------------------------------------------------------
+    def to_display(self, si):
+        """SI value(s) -> display unit (``si / scale``), elementwise over arrays (the elements
+        of a vector parameter, samples); a Python number stays one."""
+        return _array(si) / self.scale
+
+    def to_si(self, display):
+        """Display value(s) -> SI (``display * scale``): the inverse of :meth:`to_display`."""
+        return _array(display) * self.scale
+
     # -- bijection, vectorised over the element axis ---------------------------------------
     def forward(self, y):
         """Unconstrained ``y`` (shape ``(length,)``) -> physical SI value(s)."""
@@ -117,14 +135,13 @@ class Param:
         """Raise an :class:`InputError` if ``value`` (SI) is outside the bounds."""
         v = np.atleast_1d(np.asarray(value, dtype=float))
         if not np.all(np.isfinite(v)) or np.any(v < self.lower) or np.any(v > self.upper):
-            lo = self.lower / self.scale
-            hi = self.upper / self.scale
+            lo, hi = self.to_display(self.lower), self.to_display(self.upper)
             raise InputError(where, f"parameter '{self.field}'",
-                             f"found {np.round(v / self.scale, 6).tolist()} {self.unit}",
+                             f"found {np.round(self.to_display(v), 6).tolist()} {self.unit}",
                              f"give a value within [{lo:g}, {hi:g}] {self.unit}")
         if self.transform == "ordered" and np.any(np.diff(v) < 0):
             raise InputError(where, f"parameter '{self.field}'",
-                             f"found {np.round(v / self.scale, 6).tolist()} {self.unit}",
+                             f"found {np.round(self.to_display(v), 6).tolist()} {self.unit}",
                              "give an increasing sequence")
 
 
@@ -184,7 +201,17 @@ class Parameterization:
         return {e.name: e.param.unit for e in self.entries}
 
     def scales(self) -> np.ndarray:
+        """SI per display unit of every free element (``SI = display * scale``)."""
         return np.array([e.param.scale for e in self.entries])
+
+    def to_display(self, x):
+        """Flat SI values of the free elements (last axis in the order of :attr:`names`; any
+        leading axes, e.g. samples) -> display units."""
+        return _array(x) / self.scales()
+
+    def to_si(self, display):
+        """Flat display values (last axis in the order of :attr:`names`) -> SI."""
+        return _array(display) * self.scales()
 
     # -- maps -------------------------------------------------------------------------------
     def to_unconstrained(self, model) -> jnp.ndarray:
@@ -248,8 +275,7 @@ class Parameterization:
         touched: dict[tuple[int, str], tuple[Param, str]] = {}
         for name, value in values.items():
             if name not in by_name:
-                raise InputError(where, f"parameter '{name}'", "is not in this model",
-                                 f"use one of: {', '.join(by_name)}")
+                raise _not_in_model(name, by_name, where)
             i, p, e = by_name[name]
             if e is None:
                 new = float(value)
@@ -284,6 +310,41 @@ def find_param(model, name: str) -> Param:
         if name in names:
             return p
     raise KeyError(name)
+
+
+def to_display(model, values: Mapping[str, object], *, where: str | None = None) -> dict:
+    """SI values by flat name (free or fixed parameters of ``model``; numbers or arrays) ->
+    the same names in display units. An unknown name raises an :class:`InputError` naming the
+    choices."""
+    params = _by_name(model)
+    return {name: _lookup(params, name, where).to_display(value)
+            for name, value in values.items()}
+
+
+def to_si(model, values: Mapping[str, object], *, where: str | None = None) -> dict:
+    """Display values by flat name -> SI: the inverse of :func:`to_display`."""
+    params = _by_name(model)
+    return {name: _lookup(params, name, where).to_si(value) for name, value in values.items()}
+
+
+def _by_name(model) -> dict[str, Param]:
+    return {n: p for _, p, names in named_params(model) for n in names}
+
+
+def _lookup(params: Mapping[str, Param], name: str, where: str | None) -> Param:
+    if name not in params:
+        raise _not_in_model(name, params, where)
+    return params[name]
+
+
+def _not_in_model(name: str, choices: Iterable[str], where: str | None) -> InputError:
+    return InputError(where, f"parameter '{name}'", "is not in this model",
+                      f"use one of: {', '.join(choices)}")
+
+
+def _array(value):
+    """Lists and tuples as arrays (for the unit conversions); numbers and arrays as given."""
+    return np.asarray(value, dtype=float) if isinstance(value, (list, tuple)) else value
 
 
 def _base(p: Param, names: list[str]) -> str:

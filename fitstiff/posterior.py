@@ -92,6 +92,7 @@ from fitstiff.likelihood import (Layout, LinearNuisances, NoiseModel, TurningPoi
                                  noise_from_dict)
 from fitstiff.log import Log
 from fitstiff.model import Model
+from fitstiff.params import to_display
 from fitstiff.priors import Prior, Priors
 from fitstiff.problem import PROBLEM_OPTIONS, Problem
 
@@ -354,7 +355,7 @@ class Posterior:
         if name in self.derived:
             return _summary(self.flat(name), unit=split_unit(name)[1])
         i = self.names.index(name)
-        return _summary(self.flat(name) / self.priors.scales[i], unit=self.priors.units[name])
+        return _summary(self.priors.to_display(self.flat(name), i), unit=self.priors.units[name])
 
     def _defined_summary(self, name: str) -> dict[str, object]:
         """:meth:`summary`, with None for the numbers of a quantity the model does not define
@@ -374,10 +375,8 @@ class Posterior:
         problem = self.problem
         parameters: dict[str, Mapping[str, Any]] = {n: self.summary(n)
                                                      for n in self.model_names}
-        for name, value in fixed_values(problem).items():
-            scale = problem.par_scale(name)
-            parameters[name] = {"value": value / scale, "unit": problem.par_unit(name),
-                                "fixed": True}
+        for name, value in to_display(problem.model, fixed_values(problem)).items():
+            parameters[name] = {"value": value, "unit": problem.par_unit(name), "fixed": True}
         start: dict[str, Any] = {}
         if self.fit is not None:
             fit_dict = self.fit.to_dict()
@@ -433,12 +432,12 @@ class Posterior:
         units: dict[str, str] = {}
         by_walker = np.swapaxes(self.samples, 0, 1)
         for i, name in enumerate(self.model_names):
-            posterior[name] = by_walker[..., i] / self.priors.scales[i]
+            posterior[name] = self.priors.to_display(by_walker[..., i], i)
             units[name] = self.priors.units[name]
         logs = [log.name for log in self.problem.logs]
         for nuisance in self.problem.nuisance_names:
             idx = [self.names.index(f"{nuisance}[{n}]") for n in logs]
-            posterior[nuisance] = by_walker[..., idx] / self.priors.scales[idx]
+            posterior[nuisance] = self.priors.to_display(by_walker[..., idx], idx)
             units[nuisance] = self.priors.units[self.names[idx[0]]]
         for name, values in self.derived.items():
             posterior[name] = np.swapaxes(np.asarray(values), 0, 1)

@@ -211,13 +211,19 @@ class Priors:
     def to_dict(self) -> dict[str, dict[str, object]]:
         return {n: p.to_dict() for n, p in self.priors.items()}
 
+    def to_display(self, physical, index=slice(None)):
+        """SI values of the sampled names (last axis: ``names[index]``) -> display units: the
+        model's parameters as :meth:`Param.to_display <fitstiff.params.Param.to_display>`,
+        the per-log nuisances by their table."""
+        return physical / self.scales[index]
+
     def log_density(self, physical):
         """Log prior density at the SI values ``physical`` (order of ``names``)."""
         return jnp.sum(self.log_densities(physical))
 
     def log_densities(self, physical):
         """Each entry's log prior density at the SI values ``physical``."""
-        x = physical / self.scales
+        x = self.to_display(physical)
         before = jnp.where(self._previous >= 0, x[np.maximum(self._previous, 0)], 0.0)
         u = x - before - self._shift
         a, b, code = self._a, self._b, self._code
@@ -251,17 +257,17 @@ def _defaults(problem: Problem):
                 continue
             units[name] = p.unit
             scales.append(p.scale)
-            lower = p.lower / p.scale
-            start = values[name] / p.scale
+            lower = p.to_display(p.lower)
+            start = p.to_display(values[name])
             if p.transform == "identity":
                 defaults[name] = Prior("flat", unit=p.unit)
             elif p.transform == "logit":
-                defaults[name] = Prior("uniform", (lower, p.upper / p.scale), p.unit)
+                defaults[name] = Prior("uniform", (lower, p.to_display(p.upper)), p.unit)
             elif p.transform == "log" or e == 0:   # log, or the first of an ordered vector
                 defaults[name] = Prior("log_normal", (max(start - lower, 1e-12), _SD_LOG),
                                        p.unit, shift=lower)
             else:   # ordered: increment over the previous element
-                step = start - values[names[e - 1]] / p.scale
+                step = start - p.to_display(values[names[e - 1]])
                 defaults[name] = Prior("log_normal", (max(step, 1e-12), _SD_LOG), p.unit,
                                        on="increment")
                 previous[name] = names[e - 1]

@@ -472,9 +472,6 @@ class Problem:
         free = set(self.par.names)
         return {n for _, _, names in named_params(self.model) for n in names} - free
 
-    def par_scale(self, name: str) -> float:
-        return find_param(self.model, name).scale
-
     def par_unit(self, name: str) -> str:
         return find_param(self.model, name).unit
 

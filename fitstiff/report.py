@@ -38,7 +38,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from fitstiff import __version__, plotting
-from fitstiff.derived import split_unit
+from fitstiff.derived import split_unit, to_display as derived_display
 from fitstiff.errors import InputError
 from fitstiff.log import Log
 from fitstiff.model import Model
@@ -484,7 +484,8 @@ def _log_table(problem: Problem, curves: Curves, offsets: Sequence[float | None]
     rows = []
     for i, log in enumerate(problem.logs):
         supply = log.rig.supply_pressure
-        k_chamber = (float(model.term("chamber").stiffness(problem.drives[i])) * 1e-3
+        k_chamber = (derived_display("chamber_stiffness_N_per_mm",
+                                     float(model.term("chamber").stiffness(problem.drives[i])))
                      if model.has("chamber") else None)
         rows.append([log.name, str(len(log)), _pressure_cell(log, supply), _fmt(k_chamber, 4),
                      _fmt(curves.rms(problem, i), 3), _fmt(problem.force_noise[i], 3),

@@ -46,7 +46,7 @@ from fitstiff.loading import load_logs
 from fitstiff.log import Log
 from fitstiff.model import Model, build_model
 from fitstiff.output import sha256_file
-from fitstiff.params import find_param
+from fitstiff.params import to_si
 from fitstiff.posterior import PREDICTIVE, Posterior, PosteriorRecord
 from fitstiff.problem import NUISANCES, PROBLEM_OPTIONS, Problem
 from fitstiff.terms import FrictionBase
@@ -129,7 +129,8 @@ def open_run(directory: str | Path) -> RunDirectory:
     options = manifest.get("options", {})
     logs = _reread([str(started / f) for f in result["files"]], options,
                    manifest=path / MANIFEST)
-    problem = None if kind == "diagnosis" else _problem(logs, result, options)
+    problem = (None if kind == "diagnosis"
+               else _problem(logs, result, options, where=str(path / name)))
     return RunDirectory(path=path, kind=kind, result=result, manifest=manifest,
                         problem=problem, inputs=inputs, logs=tuple(logs), posterior=posterior)
 
@@ -189,14 +190,14 @@ def _verified(entry: Mapping[str, str], *, manifest: Path) -> tuple[Path, str]:
 
 
 def _problem(logs: Sequence[Log], result: Mapping[str, Any],
-             options: Mapping[str, Any]) -> Problem:
+             options: Mapping[str, Any], *, where: str) -> Problem:
     """The run's problem: its model, fixed values (from the result file, exact) and the
     nuisances it fixed (from the manifest's ``fix``), its problem options."""
     spec = result["model"]
     template = build_model(spec)
-    fix: dict[str, float | None] = {
-        name: p["value"] * find_param(template, name).scale
-        for name, p in result["parameters"].items() if p.get("fixed")}
+    fix: dict[str, float | None] = to_si(
+        template, {name: p["value"] for name, p in result["parameters"].items()
+                   if p.get("fixed")}, where=where)
     fix |= dict.fromkeys(n for item in options.get("fix", [])
                          if (n := item.partition("=")[0]) in NUISANCES)
     recorded = {k: options[k] for k in PROBLEM_OPTIONS if k in options}
@@ -305,9 +306,10 @@ def read_chain(run: RunDirectory) -> Chain:
         theta = full
     physical = jax.jit(jax.vmap(problem.physical))
     flat = np.asarray(physical(jnp.asarray(theta.reshape(-1, problem.size))))
-    scales = np.concatenate([problem.par.scales(), np.ones(problem.size - problem.par.size)])
-    return Chain(theta=theta, log_prob=log_prob,
-                  display=(flat / scales).reshape(theta.shape),
+    # model parameters in their display units, the nuisances as they are (N, -, Pa)
+    display = np.concatenate([problem.par.to_display(flat[:, :problem.par.size]),
+                              flat[:, problem.par.size:]], axis=1)
+    return Chain(theta=theta, log_prob=log_prob, display=display.reshape(theta.shape),
                   discard=diagnostics.discard, thin=diagnostics.thin,
                   stored_kept=kept if integrated else None)
 

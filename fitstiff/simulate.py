@@ -39,7 +39,7 @@ from fitstiff.errors import InputError
 from fitstiff.log import Log, Rig
 from fitstiff.model import Model, Prediction, build_model
 from fitstiff.output import to_jsonable, write_atomic
-from fitstiff.params import Parameterization, named_params
+from fitstiff.params import Parameterization, named_params, to_si
 from fitstiff.programs import Program
 from fitstiff.segmentation import standstill
 
@@ -184,9 +184,7 @@ def simulate(model_or_spec: Model | str, program: Program, *, rig: Rig,
 
 def _with_display_values(model: Model, values: Mapping[str, float]) -> Model:
     """``model`` with parameters set by flat name in display units (checked against bounds)."""
-    scale = {name: p.scale for _, p, names in named_params(model) for name in names}
-    # unknown names keep scale 1 here and are reported by with_values, naming the choices
-    si = {name: float(value) * scale.get(name, 1.0) for name, value in values.items()}
+    si = to_si(model, {name: float(value) for name, value in values.items()})
     return Parameterization(model).with_values(model, si)
 
 
@@ -195,7 +193,7 @@ def _parameter_table(model: Model) -> dict[str, dict[str, object]]:
     for i, p, names in named_params(model):
         value = np.atleast_1d(np.asarray(getattr(model.terms[i], p.field), dtype=float))
         for name, v in zip(names, value):
-            table[name] = {"value": float(v) / p.scale, "unit": p.unit}
+            table[name] = {"value": p.to_display(float(v)), "unit": p.unit}
     return table
 
 

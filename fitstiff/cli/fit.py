@@ -83,11 +83,11 @@ def parse_fix(items, spec: str) -> dict[str, float | None]:
                              "write NAME=VALUE in the parameter's display unit, as a plain "
                              "finite decimal") from None
         try:
-            scale = find_param(model, name).scale
+            param = find_param(model, name)
         except KeyError:
             raise InputError(None, f"--fix {item}", f"'{name}' is not a parameter of "
                              f"'{spec}'", "see the parameter names in fit.json") from None
-        values[name] = number * scale
+        values[name] = param.to_si(number)
     return values
 
 

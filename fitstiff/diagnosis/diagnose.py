@@ -30,6 +30,7 @@ from fitstiff.diagnosis.select import folds_for, held_out
 from fitstiff.diagnosis.supermodel import SuperProblem, candidate_names
 from fitstiff.errors import InputError
 from fitstiff.log import Log
+from fitstiff.params import to_display
 from fitstiff.terms import TERMS
 
 __all__ = ["diagnose", "ALPHA", "MIN_GAIN", "MIN_SHRINK"]
@@ -226,11 +227,8 @@ def _maxwell_shape(sp: SuperProblem, theta, hold, active) -> np.ndarray:
 
 
 def _display(sp: SuperProblem, values, kind: str) -> dict[str, dict[str, object]]:
-    out = {}
-    for name, value in values.items():
-        k = sp.problem.par.names.index(name)
-        out[name] = {"value": value / sp.scales[k], "unit": sp.units[name], "kind": kind}
-    return out
+    return {name: {"value": value, "unit": sp.units[name], "kind": kind}
+            for name, value in to_display(sp.problem.model, values).items()}
 
 
 def _improved(sp, noise, masks, before, after) -> tuple[str, ...]:
@@ -256,8 +254,8 @@ def _detectability(s: Score) -> dict[str, object]:
     if not s.testable:
         return {"testable": False, "parameter": s.parameter, "reason": s.reason,
                 "record": term.excitation}
-    return {"testable": True, "parameter": s.parameter, "size": s.detectable / s.scale,
-            "unit": s.unit, "power": 0.8}
+    return {"testable": True, "parameter": s.parameter, "size": s.param.to_display(s.detectable),
+            "unit": s.param.unit, "power": 0.8}
 
 
 def _cell(row) -> dict[str, object]:

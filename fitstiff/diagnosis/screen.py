@@ -39,6 +39,7 @@ from scipy import stats
 
 from fitstiff.diagnosis.noise import NoiseFloor, noise_floor
 from fitstiff.diagnosis.supermodel import SuperProblem
+from fitstiff.params import Param
 
 __all__ = ["Score", "screen", "SHAPE_GRIDS", "POWER"]
 
@@ -64,8 +65,7 @@ class Score:
     reason: str | None             # why not testable
     detectable: float | None       # SI, along the main direction (see ``parameter``)
     parameter: str                 # main parameter the detectable size refers to
-    unit: str
-    scale: float                   # SI per display unit
+    param: Param                   # its metadata (display unit, conversion)
     one_step: Mapping[str, float]  # SI start values of the candidate's parameters
     shape: Mapping[str, float]     # shape values of the best grid point (SI)
 
@@ -207,8 +207,7 @@ def _score(effect: str, sp: SuperProblem, tested: np.ndarray, g_cols: np.ndarray
     main = owners[0].name.rsplit("_", 1)[0] if owners[0].name.endswith("_1") else owners[0].name
     direction_vec = np.array([1.0 if (o.name == main or o.name.rsplit("_", 1)[0] == main)
                               else 0.0 for o in owners])
-    scale = float(sp.scales[tested[0]])
-    unit = sp.units[owners[0].name]
+    param = sp.problem.par.entries[tested[0]].param
     g_perp = g_cols - q @ (q.T @ g_cols)
     raw = np.linalg.norm(g_cols @ direction_vec)
     left = np.linalg.norm(g_perp @ direction_vec)
@@ -217,8 +216,8 @@ def _score(effect: str, sp: SuperProblem, tested: np.ndarray, g_cols: np.ndarray
     if raw == 0 or left**2 < _COLLINEAR * raw**2 or s2 <= 0:
         reason = ("the logs do not excite it (its effect on the force is zero)" if raw == 0
                   else "with these logs it cannot be told apart from the baseline's parameters")
-        return Score(effect, 0.0, len(tested), 1.0, 0.0, False, reason, None, main, unit,
-                     scale, {}, {})
+        return Score(effect, 0.0, len(tested), 1.0, 0.0, False, reason, None, main, param,
+                     {}, {})
     g = g_perp.T @ r_perp
     info = g_perp.T @ g_perp
     pinv = np.linalg.pinv(info, rcond=1e-10)
@@ -246,5 +245,5 @@ def _score(effect: str, sp: SuperProblem, tested: np.ndarray, g_cols: np.ndarray
         one_step[o.name] = float(np.clip(v, lo + tiny if lo == o.null else lo,
                                          hi - 1e-9 * abs(hi) if np.isfinite(hi) else np.inf))
     sign = float(np.sign(direction_vec @ step))
-    return Score(effect, statistic, dof, p, sign, True, None, detectable, main, unit, scale,
+    return Score(effect, statistic, dof, p, sign, True, None, detectable, main, param,
                  one_step, {})

@@ -177,7 +177,6 @@ class SuperProblem:
                             for k, e in enumerate(par.entries))
         self.n_model = par.size
         self.size = self.problem.size
-        self.scales = par.scales()
         self.units = par.units()
         self.series = self.problem.residual_series()
         self.n_residuals = max(s.span.stop for s in self.series)
