@@ -40,7 +40,7 @@ from fitstiff.identifiability import Identifiability, assess_identifiability, re
 from fitstiff.log import Log
 from fitstiff.model import Model
 from fitstiff.params import Parameterization, named_params, to_display, to_si
-from fitstiff.problem import Problem
+from fitstiff.problem import NUISANCE_PARAMS, Problem
 from fitstiff.terms.base import FrictionBase, FrictionEstimate, Modifier
 
 __all__ = ["FitResult", "fit", "fit_problem", "initial_guess", "SOLVERS", "LEAN_JACOBIAN_MB"]
@@ -81,9 +81,10 @@ _LAG1_CAP = 0.99
 #: steps at a cost change of 2e-6 relative, about 0.02 standard errors)
 _FLAT_STEPS = 10
 _FLAT_SD = 0.1
-#: each fitted nuisance's fit.json ``per_log`` key and its factor to SI (Problem.pack's units)
-PER_LOG_NUISANCES = {"offset": ("offset_N", 1.0), "friction_state0": ("friction_state0", 1.0),
-                     "closing_pressure": ("closing_pressure_bar", 1e5)}
+#: each fitted nuisance's fit.json ``per_log`` key (its name and display unit) and its
+#: transform-layer entry, which converts the value
+PER_LOG_NUISANCES = {name: (name if p.unit == "-" else f"{name}_{p.unit}", p)
+                     for name, p in NUISANCE_PARAMS.items()}
 _RESIDUAL_LIMIT = 1e100  # whitened residuals / Jacobian entries beyond this are refused
 
 
@@ -166,8 +167,8 @@ class FitResult:
         values = to_si(problem.model, {name: p["value"] for name, p in data["parameters"].items()
                                        if not p.get("fixed")}, where=where)
         model = problem.par.with_values(problem.model, values, where=where)
-        nuisances = {name: [entry[key] * factor for entry in data["per_log"]]
-                     for name, (key, factor) in PER_LOG_NUISANCES.items()
+        nuisances = {name: [p.to_si(entry[key]) for entry in data["per_log"]]
+                     for name, (key, p) in PER_LOG_NUISANCES.items()
                      if name in problem.nuisance_names}
         return problem.pack(model, nuisances)
 
@@ -598,8 +599,8 @@ def _summarise(problem: Problem, theta, *, converged: bool, message: str, steps:
                  "force_noise_N": problem.force_noise[i],
                  "displacement_noise_um": problem.displacement_noise[i] * 1e6,
                  "denoised_displacement": problem.denoised[i]}
-        entry |= {key: float(nuis[name][i]) / factor
-                  for name, (key, factor) in PER_LOG_NUISANCES.items() if name in nuis}
+        entry |= {key: p.to_display(float(nuis[name][i]))
+                  for name, (key, p) in PER_LOG_NUISANCES.items() if name in nuis}
         per_log.append(entry)
     k = n_par
     n = max(n_data, 1)

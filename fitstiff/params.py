@@ -21,12 +21,20 @@ identity     ``y``                                             signed, unbounded
 log          ``lower + exp(y)``                                positive scales
 logit        ``lower + (upper - lower) * sigmoid(y)``          bounded (exponents, ratios)
 ordered      ``x_1 = lower + e^{y_1}, x_i = x_{i-1} + e^{y_i}`` increasing vectors
+tanh         ``mid + half * tanh(y)`` (mid, half of the bounds) a log's initial friction state
+scaled       ``y * scale`` (``y`` in the display unit)         a log's closing pressure (bar)
 ============ ================================================= ==========================
+
+The per-log nuisances of an identification problem (force offset, initial friction state,
+closing pressure) are :class:`Param` entries too (``fitstiff.problem.NUISANCE_PARAMS``).
+A ``scaled`` or ``identity`` transform has a constant log-Jacobian (:data:`CONSTANT_JACOBIAN`),
+which a density may leave out.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from collections.abc import Iterable, Mapping
 
@@ -35,10 +43,12 @@ import numpy as np
 from fitstiff._jax import jax, jnp
 from fitstiff.errors import InputError
 
-__all__ = ["Param", "Parameterization", "TRANSFORMS", "find_param", "named_params", "to_display",
+__all__ = ["CONSTANT_JACOBIAN", "Param", "Parameterization", "TRANSFORMS", "find_param", "named_params", "to_display",
            "to_si"]
 
-TRANSFORMS = ("identity", "log", "logit", "ordered")
+TRANSFORMS = ("identity", "log", "logit", "ordered", "tanh", "scaled")
+#: transforms whose log-Jacobian does not depend on the value
+CONSTANT_JACOBIAN = ("identity", "scaled")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -72,9 +82,12 @@ class Param:
                                "logit" if lo and hi else "log" if lo else "identity")
         if self.transform not in TRANSFORMS:
             raise ValueError(f"unknown transform {self.transform!r} for {self.field}")
-        if self.transform == "identity" and (math.isfinite(self.lower)
-                                             or math.isfinite(self.upper)):
-            raise ValueError(f"{self.field}: identity transform cannot honour bounds")
+        if self.transform in CONSTANT_JACOBIAN and (math.isfinite(self.lower)
+                                                    or math.isfinite(self.upper)):
+            raise ValueError(f"{self.field}: {self.transform} transform cannot honour bounds")
+        if self.transform in ("logit", "tanh") and not (math.isfinite(self.lower)
+                                                        and math.isfinite(self.upper)):
+            raise ValueError(f"{self.field}: {self.transform} transform needs both bounds")
 
     @property
     def length(self) -> int:
@@ -104,7 +117,12 @@ class Param:
         if self.transform == "log":
             return lo + jnp.exp(y)
         if self.transform == "logit":
-            return lo + (hi - lo) * jax.nn.sigmoid(y)
+            # clipped: a saturated sigmoid would round one ulp past ``upper``
+            return jnp.clip(lo + (hi - lo) * jax.nn.sigmoid(y), lo, hi)
+        if self.transform == "tanh":
+            return 0.5 * (lo + hi) + 0.5 * (hi - lo) * jnp.tanh(y)
+        if self.transform == "scaled":
+            return y * self.scale
         return lo + jnp.cumsum(jnp.exp(y))  # ordered
 
     def inverse(self, x):
@@ -119,6 +137,11 @@ class Param:
         if self.transform == "logit":
             f = jnp.clip((x - lo) / (hi - lo), 1e-9, 1 - 1e-9)
             return jnp.log(f) - jnp.log1p(-f)
+        if self.transform == "tanh":
+            u = (x - 0.5 * (lo + hi)) / (0.5 * (hi - lo))
+            return jnp.arctanh(jnp.clip(u, -1 + 1e-9, 1 - 1e-9))
+        if self.transform == "scaled":
+            return x / self.scale
         steps = jnp.diff(x, prepend=lo)
         return jnp.log(jnp.maximum(steps, tiny))
 
@@ -129,6 +152,10 @@ class Param:
         if self.transform in ("log", "ordered"):
             return jnp.sum(y)
         lo, hi = self.lower, self.upper
+        if self.transform == "tanh":
+            return jnp.sum(math.log(0.5 * (hi - lo)) + jnp.log1p(-jnp.tanh(y) ** 2))
+        if self.transform == "scaled":
+            return jnp.sum(jnp.full(jnp.shape(y), math.log(self.scale)))
         return jnp.sum(math.log(hi - lo) + jax.nn.log_sigmoid(y) + jax.nn.log_sigmoid(-y))
 
     def check(self, value, *, where: str) -> None:
@@ -170,14 +197,15 @@ class Parameterization:
         fixed = set(fixed)
         groups = named_params(model)
         all_names = [n for _, _, names in groups for n in names]
+        set_ = functools.partial(object.__setattr__, self)
         vector_bases = {_base(p, names) for _, p, names in groups if p.size}
         unknown = fixed - set(all_names) - vector_bases
         if unknown:
             raise InputError(None, f"--fix {', '.join(sorted(unknown))}",
                              "names no parameter of this model",
                              f"use one of: {', '.join(all_names)}")
-        self._groups: list[tuple[int, Param, int]] = []  # free (term index, param, offset)
-        self.entries: list[_Entry] = []
+        free: list[tuple[int, Param, int]] = []          # free (term index, param, offset)
+        entries: list[_Entry] = []
         offset = 0
         for i, p, names in groups:
             base = _base(p, names)
@@ -187,11 +215,16 @@ class Parameterization:
                 raise InputError(None, f"--fix {', '.join(n for n in names if n in fixed)}",
                                  f"fixes part of the vector parameter '{base}'",
                                  f"fix all of {base} or none")
-            self._groups.append((i, p, offset))
+            free.append((i, p, offset))
             for e, name in enumerate(names):
-                self.entries.append(_Entry(name, i, p, None if p.size is None else e, offset))
+                entries.append(_Entry(name, i, p, None if p.size is None else e, offset))
             offset += p.length
-        self.size = offset
+        set_("_groups", tuple(free))
+        set_("entries", tuple(entries))
+        set_("size", offset)
+
+    def __setattr__(self, name, value):
+        raise AttributeError(f"a Parameterization is immutable: cannot set '{name}'")
 
     @property
     def names(self) -> list[str]:

@@ -50,7 +50,7 @@ import numpy as np
 from fitstiff._jax import jnp
 from fitstiff.errors import InputError
 from fitstiff.params import Parameterization, named_params
-from fitstiff.problem import Problem
+from fitstiff.problem import NUISANCE_PARAMS, Problem
 from fitstiff.validation import describe_type, read_json, shown
 
 __all__ = ["DISTRIBUTIONS", "Prior", "Priors", "load_priors"]
@@ -65,9 +65,6 @@ DISTRIBUTIONS: dict[str, tuple[str, ...]] = {
 }
 _CODES = {name: i for i, name in enumerate(DISTRIBUTIONS)}
 _SD_LOG = math.log(10.0)
-#: per-log nuisances: display unit, SI per display unit, default prior
-_NUISANCES = {"offset": ("N", 1.0, ()), "friction_state0": ("-", 1.0, (-1.0, 1.0)),
-              "closing_pressure": ("bar", 1e5, ())}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -274,10 +271,13 @@ def _defaults(problem: Problem):
     for nuisance in problem.nuisance_names:
         for log in problem.logs:
             name = f"{nuisance}[{log.name}]"
-            unit, scale, bounds = _NUISANCES[nuisance]
-            units[name] = unit
-            scales.append(scale)
-            defaults[name] = Prior("uniform" if bounds else "flat", bounds, unit)
+            p = NUISANCE_PARAMS[nuisance]
+            bounded = math.isfinite(p.lower) and math.isfinite(p.upper)
+            units[name] = p.unit
+            scales.append(p.scale)
+            defaults[name] = Prior("uniform" if bounded else "flat",
+                                   (p.to_display(p.lower), p.to_display(p.upper)) if bounded
+                                   else (), p.unit)
     return units, np.array(scales), defaults, previous
 
 

@@ -37,15 +37,27 @@ from fitstiff.errors import InputError
 from fitstiff.guards import check_logs
 from fitstiff.log import Log
 from fitstiff.model import Model, build_model, difference_acceleration, model_needs, time_steps
-from fitstiff.params import Parameterization, find_param, named_params
+from fitstiff.params import CONSTANT_JACOBIAN, Param, Parameterization, find_param, named_params
 from fitstiff.segmentation import REGIONS, Segmentation, estimate_noise, segment
 from fitstiff.terms import FrictionBase
 
 __all__ = ["Problem", "NUISANCES", "OPTIONAL_NUISANCES", "PROBLEM_OPTIONS", "ResidualSeries",
            "channel_noise"]
 
+#: the per-log nuisances as transform-layer entries (SI values; ``theta`` holds their
+#: unconstrained values: the offset as it is, the initial friction state through ``tanh``,
+#: the closing pressure in bar, on the scale of the other entries)
+NUISANCE_PARAMS = {
+    "offset": Param("offset", "N", 1.0, -math.inf, math.inf, "force-channel offset of a log"),
+    "friction_state0": Param("friction_state0", "-", 1.0, -1.0, 1.0,
+                             "initial friction state of a log (fraction of saturation)",
+                             transform="tanh"),
+    "closing_pressure": Param("closing_pressure", "bar", 1e5, -math.inf, math.inf,
+                              "gauge pressure at which a log's chambers were closed",
+                              transform="scaled"),
+}
 #: per-log nuisance names (fit.json ``per_log``)
-NUISANCES = ("offset", "friction_state0", "closing_pressure")
+NUISANCES = tuple(NUISANCE_PARAMS)
 #: keyword options of :class:`Problem` that a fit passes through (and a report must repeat)
 PROBLEM_OPTIONS = ("denoise", "sample_range", "weights", "skip", "free")
 #: nuisances held unless asked for with ``free``
@@ -293,10 +305,8 @@ class Problem:
         for name in self.nuisance_names:
             values = np.asarray(nuisances.get(name, np.zeros(self.n_logs)), float)
             if name == "friction_state0":
-                values = np.arctanh(np.clip(values, -0.999, 0.999))
-            elif name == "closing_pressure":
-                values = values / 1e5          # bar in theta: comparable scale to the rest
-            parts.append(values)
+                values = np.clip(values, -0.999, 0.999)     # a start off saturation
+            parts.append(np.asarray(self.nuisance_param(name).inverse(values)))
         return jnp.asarray(np.concatenate(parts))
 
     def unpack(self, theta):
@@ -307,11 +317,13 @@ class Problem:
         """``{nuisance: (n_logs,) values}`` of ``theta`` (its entries after the model's)."""
         out, off = {}, self.par.size
         for name in self.nuisance_names:
-            block = theta[off:off + self.n_logs]
-            out[name] = (jnp.tanh(block) if name == "friction_state0" else
-                         block * 1e5 if name == "closing_pressure" else block)
+            out[name] = self.nuisance_param(name).forward(theta[off:off + self.n_logs])
             off += self.n_logs
         return out
+
+    def nuisance_param(self, name: str) -> Param:
+        """The transform-layer entry of nuisance ``name``: one element per log."""
+        return dataclasses.replace(NUISANCE_PARAMS[name], size=self.n_logs)
 
     def linear_entries(self) -> list[int]:
         """Positions in ``theta`` of the entries the residuals are exactly linear in: the
@@ -322,14 +334,14 @@ class Problem:
         return list(range(start, start + self.n_logs))
 
     def log_jacobian(self, theta):
-        """log |d(physical)/d(theta)| of the model part (nuisances: offsets and closing
-        pressures linear, constant Jacobian left out; the initial friction state's tanh
-        Jacobian is included)."""
+        """log |d(physical)/d(theta)|, the constant parts left out (the nuisances' with a
+        :data:`~fitstiff.params.CONSTANT_JACOBIAN` transform: offsets, closing pressures)."""
         lj = self.par.log_jacobian(theta[:self.par.size])
-        if "friction_state0" in self.nuisance_names:
-            off = self.par.size + self.nuisance_names.index("friction_state0") * self.n_logs
-            block = theta[off:off + self.n_logs]
-            lj = lj + jnp.sum(jnp.log1p(-jnp.tanh(block) ** 2))
+        for k, name in enumerate(self.nuisance_names):
+            param = self.nuisance_param(name)
+            if param.transform not in CONSTANT_JACOBIAN:
+                off = self.par.size + k * self.n_logs
+                lj = lj + param.log_jacobian(theta[off:off + self.n_logs])
         return lj
 
     def physical(self, theta):
