@@ -87,7 +87,7 @@ class ResidualSeries(NamedTuple):
 
 class _Group(eqx.Module):
     """Logs with one static structure, padded and stacked for one vmap-ed scan (a pytree:
-    :meth:`Problem.jit` passes its arrays to compiled functions as arguments)."""
+    :meth:`Problem.compiled` passes its arrays to compiled functions as arguments)."""
 
     index: tuple[int, ...] = eqx.field(static=True)   # positions of the logs in Problem.logs
     drive: Drive                 # stacked: leaves have a leading log axis
