@@ -37,6 +37,7 @@ from fitstiff.errors import InputError
 from fitstiff.guards import check_logs
 from fitstiff.log import Log
 from fitstiff.model import Model, build_model, difference_acceleration, model_needs, time_steps
+from fitstiff.noise import marginal_scale, noise_floor
 from fitstiff.params import CONSTANT_JACOBIAN, Param, Parameterization, find_param, named_params
 from fitstiff.segmentation import REGIONS, Segmentation, estimate_noise, segment
 from fitstiff.terms import FrictionBase
@@ -375,10 +376,14 @@ class Problem:
     def reversal_noise(self) -> tuple:
         """Per group ``(L, N)``: the standard error (m) of each log's turning points at their
         samples, 0 elsewhere - the local fit's (:func:`~fitstiff.denoise.turning_points`)
-        for a denoised log, else the displacement noise. An error in a turning point shifts
-        the whole branch after it; this is the errors-in-variables part of the covariance
-        (:mod:`fitstiff.fitting`) and of the posterior's likelihood. Computed once, from the
-        concrete drives (a :meth:`jit` function receives them as arguments)."""
+        for a denoised log, else the displacement noise. Both allow for correlated
+        displacement noise (its lag-1 correlation from :func:`~fitstiff.noise.noise_floor`):
+        read as white, AR(1) noise of correlation 0.73 looks 2.2 times smaller than it is and
+        the turning points' errors came out half the actual ones (``benchmarks/
+        calibration.py`` datasets). An error in a turning point shifts the whole branch after
+        it; this is the errors-in-variables part of the covariance (:mod:`fitstiff.fitting`)
+        and of the posterior's likelihood. Computed once, from the concrete drives (a
+        :meth:`compiled` function receives them as arguments)."""
         if self._reversal_noise is not None:
             return self._reversal_noise
         out = []
@@ -387,14 +392,16 @@ class Problem:
             for i in g.index:
                 row = np.zeros(g.force.shape[1])
                 seg = self.segmentations[i]
+                rho = noise_floor(self.logs[i].displacement).rho
                 if self.denoised[i]:
                     # a denoised log's turning points are local fits: their own errors
                     index, _, error = turning_points(self.logs[i].displacement,
-                                                     seg.reversals, noise=seg.noise)
+                                                     seg.reversals, noise=seg.noise, rho=rho)
                     row[index] = error
                 else:
                     x = np.asarray(self.drives[i].displacement)
-                    row[reversal_samples(x, seg.reversals)] = self.displacement_noise[i]
+                    row[reversal_samples(x, seg.reversals)] = (self.displacement_noise[i]
+                                                               * marginal_scale(rho))
                 rows.append(row)
             out.append(jnp.asarray(np.stack(rows)))
         object.__setattr__(self, "_reversal_noise", tuple(out))     # computed once, on demand

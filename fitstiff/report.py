@@ -578,7 +578,7 @@ def _diagnosis_report(run: RunDirectory, *, draws: int) -> _Report:
     del draws
     from fitstiff.diagnosis import HELDOUT, Diagnosis
     from fitstiff.diagnosis.gap import region_summary
-    from fitstiff.diagnosis.noise import NoiseFloor
+    from fitstiff.noise import NoiseFloor
     from fitstiff.segmentation import segment
 
     result = Diagnosis.from_dict(run.result)

@@ -36,7 +36,7 @@ import matplotlib.pyplot as plt
 
 from fitstiff.diagnosis import diagnose
 from fitstiff.diagnosis.gap import region_summary
-from fitstiff.diagnosis.noise import NoiseFloor
+from fitstiff.noise import NoiseFloor
 from fitstiff.log import Rig
 from fitstiff.plotting import plot_gap_heatmap, plot_residual_signature
 from fitstiff.programs import TriangleCycles

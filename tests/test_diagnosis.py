@@ -12,7 +12,7 @@ import pytest
 from conftest import CHROMIUM, check_renders_in_chromium
 
 from fitstiff._jax import jax, jnp
-from fitstiff.diagnosis.noise import noise_floor
+from fitstiff.noise import noise_floor
 from fitstiff.errors import InputError
 from fitstiff.log import Rig
 from fitstiff.model import build_model

@@ -1,7 +1,7 @@
 """The sim-to-real gap diagnosis (DESIGN §6): :func:`diagnose` -> :class:`Diagnosis`.
 
-Modules, one concept each: :mod:`~fitstiff.diagnosis.noise` (the noise floor from the data
-alone), :mod:`~fitstiff.diagnosis.supermodel` (the baseline and every candidate as one
+Modules, one concept each (with :mod:`fitstiff.noise`, the noise floor from the data
+alone): :mod:`~fitstiff.diagnosis.supermodel` (the baseline and every candidate as one
 compiled model with run-time masks), :mod:`~fitstiff.diagnosis.gap` (where: held-out residuals
 by region), :mod:`~fitstiff.diagnosis.screen` (which: score statistics and detectability),
 :mod:`~fitstiff.diagnosis.select` (how far: held-out folds and the acceptance rule),

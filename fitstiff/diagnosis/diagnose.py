@@ -4,7 +4,7 @@ The steps (DESIGN §6):
 
 1. build the baseline and every candidate as one compiled super-model
    (:class:`~fitstiff.diagnosis.supermodel.SuperProblem`), fit the baseline, estimate each
-   log's noise floor from the data alone (:func:`~fitstiff.diagnosis.noise.noise_floor`);
+   log's noise floor from the data alone (:func:`~fitstiff.noise.noise_floor`);
 2. **where**: the baseline's held-out residuals per cell (:mod:`fitstiff.diagnosis.gap`);
 3. **which**: score statistics of every candidate at its null
    (:mod:`fitstiff.diagnosis.screen`), then held-out refits of the promising ones;
@@ -23,7 +23,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from fitstiff.diagnosis.gap import above_floor, pooled_excess, region_table
-from fitstiff.diagnosis.noise import noise_floor
+from fitstiff.noise import noise_floor
 from fitstiff.diagnosis.result import Candidate, Diagnosis
 from fitstiff.diagnosis.screen import Score, screen
 from fitstiff.diagnosis.select import folds_for, held_out

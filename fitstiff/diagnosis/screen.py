@@ -37,7 +37,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 from scipy import stats
 
-from fitstiff.diagnosis.noise import NoiseFloor, noise_floor
+from fitstiff.noise import NoiseFloor, noise_floor
 from fitstiff.diagnosis.supermodel import SuperProblem
 from fitstiff.params import Param
 

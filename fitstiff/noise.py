@@ -1,4 +1,7 @@
-"""The noise floor of a force channel, estimated from the data alone (not from a model's misfit).
+"""The noise of a channel, estimated from the data alone (not from a model's misfit).
+
+Used for the force channel's noise floor in the diagnosis and for the correlation of the
+displacement noise behind the turning points' errors (:class:`~fitstiff.problem.Problem`).
 
 A model that misses an effect leaves a residual larger than the sensor noise; to say how much
 larger, the noise must be known independently of any model. Differences of the raw channel
@@ -27,7 +30,7 @@ import math
 
 import numpy as np
 
-__all__ = ["NoiseFloor", "noise_floor"]
+__all__ = ["NoiseFloor", "marginal_scale", "noise_floor"]
 
 _MAD = 1.4826
 _RHO_MIN, _RHO_MAX = -0.9, 0.95
@@ -51,6 +54,14 @@ class NoiseFloor:
     def to_dict(self) -> dict[str, object]:
         return {"sigma_N": self.sigma, "rho": self.rho, "method": self.method,
                 "capped": self.capped}
+
+
+def marginal_scale(rho: float) -> float:
+    """Marginal standard deviation of AR(1) noise with lag-1 correlation ``rho`` per unit of
+    the white-noise level read from its lag-1 second differences (``sqrt(D_1 / 6)``, e.g.
+    :func:`~fitstiff.segmentation.estimate_noise`): ``sqrt(6 / (2 (1 - rho)(3 - rho)))``;
+    1 for white noise, 2.2 at ``rho = 0.73``."""
+    return math.sqrt(3.0 / ((1.0 - rho) * (3.0 - rho)))
 
 
 def _robust_var(d: np.ndarray) -> float:
