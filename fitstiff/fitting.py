@@ -30,15 +30,16 @@ from typing import Any, NamedTuple
 import numpy as np
 import optimistix as optx
 
+from fitstiff import lm
 from fitstiff._jax import jax, jnp
 from fitstiff.derived import DERIVED, derived_quantities, split_unit
 from fitstiff.derived import to_display as derived_display
-from fitstiff import lm
 from fitstiff.errors import InputError
 from fitstiff.guards import check_finite
 from fitstiff.identifiability import Identifiability, assess_identifiability, reversal_travel
 from fitstiff.log import Log
 from fitstiff.model import Model
+from fitstiff.noise import marginal_scale
 from fitstiff.params import Parameterization, named_params, to_display, to_si
 from fitstiff.problem import NUISANCE_PARAMS, Problem
 from fitstiff.terms.base import FrictionBase, FrictionEstimate, Modifier
@@ -597,7 +598,10 @@ def _summarise(problem: Problem, theta, *, converged: bool, message: str, steps:
                  "closing_pressure_bar": (log.rig.supply_pressure / 1e5
                                           if log.rig.supply_pressure is not None else None),
                  "force_noise_N": problem.force_noise[i],
-                 "displacement_noise_um": problem.displacement_noise[i] * 1e6,
+                 # the marginal level: read as white, correlated noise looks smaller
+                 "displacement_noise_um": (problem.displacement_noise[i]
+                                           * marginal_scale(problem.displacement_rho[i]) * 1e6),
+                 "displacement_noise_rho": problem.displacement_rho[i],
                  "denoised_displacement": problem.denoised[i]}
         entry |= {key: p.to_display(float(nuis[name][i]))
                   for name, (key, p) in PER_LOG_NUISANCES.items() if name in nuis}

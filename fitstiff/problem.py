@@ -142,6 +142,9 @@ class Problem:
         spec = model if isinstance(model, str) else model.spec
         needs = model_needs(model)
         self.displacement_noise = [s.noise for s in self.segmentations]
+        #: lag-1 correlation of each log's displacement noise (``displacement_noise`` is its
+        #: white-equivalent level; the marginal one is ``noise * marginal_scale(rho)``)
+        self.displacement_rho = [noise_floor(log.displacement).rho for log in self.logs]
         self.denoised = [self._want_denoise(denoise, s) for s in self.segmentations]
         self.drives: list[Drive] = []
         for log, seg, den in zip(self.logs, self.segmentations, self.denoised):
@@ -392,7 +395,7 @@ class Problem:
             for i in g.index:
                 row = np.zeros(g.force.shape[1])
                 seg = self.segmentations[i]
-                rho = noise_floor(self.logs[i].displacement).rho
+                rho = self.displacement_rho[i]
                 if self.denoised[i]:
                     # a denoised log's turning points are local fits: their own errors
                     index, _, error = turning_points(self.logs[i].displacement,
