@@ -46,6 +46,7 @@ from fitstiff.terms.base import FrictionBase, FrictionEstimate, Modifier
 
 __all__ = ["FitResult", "fit", "fit_problem", "initial_guess", "SOLVERS", "LEAN_JACOBIAN_MB"]
 
+
 class NormalEquationsLM(NamedTuple):
     """fitstiff's Levenberg-Marquardt in its normal-equations form
     (:func:`fitstiff.lm.levenberg_marquardt` ``normal=True``): no Jacobian kept between
@@ -595,8 +596,8 @@ def _summarise(problem: Problem, theta, *, converged: bool, message: str, steps:
                  "samples": len(log), "rms_N": math.sqrt(float(res @ res) / max(res.size, 1)),
                  "offset_N": 0.0, "friction_state0": None,
                  "chamber_stiffness_N_per_mm": _finite(k_ch),
-                 "closing_pressure_bar": (log.rig.supply_pressure / 1e5
-                                          if log.rig.supply_pressure is not None else None),
+                 "closing_pressure_bar": (NUISANCE_PARAMS["closing_pressure"].to_display(
+                     log.rig.supply_pressure) if log.rig.supply_pressure is not None else None),
                  "force_noise_N": problem.force_noise[i],
                  # the marginal level: read as white, correlated noise looks smaller
                  "displacement_noise_um": (problem.displacement_noise[i]
@@ -699,10 +700,9 @@ def _summary_evaluate(problem: Problem, theta, *, spans: tuple[tuple[tuple[int, 
     if state.size:
         # each log's share of the state column, masked rather than sliced out of J^T
         # (a slice of J^T is a copy: +130 MB for a 1 M-sample log)
-        owner = jnp.full(state.shape, -1).at[jnp.concatenate(
-            [jnp.arange(a, b) for log_spans in spans for a, b in log_spans])].set(
-            jnp.concatenate([jnp.full(b - a, i) for i, log_spans in enumerate(spans)
-                             for a, b in log_spans]))
+        # (the series tile the residual vector: each entry's log, in order of the spans)
+        owner = jnp.concatenate([jnp.full(b - a, i) for a, b, i in sorted(
+            (a, b, i) for i, log_spans in enumerate(spans) for a, b in log_spans)])
         for i in range(len(spans)):
             u = jnp.where(owner == i, state, 0.0)
             cross.append(jnp.sum(jt * u, axis=1))

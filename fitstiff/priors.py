@@ -211,7 +211,8 @@ class Priors:
     def to_display(self, physical, index=slice(None)):
         """SI values of the sampled names (last axis: ``names[index]``) -> display units: the
         model's parameters as :meth:`Param.to_display <fitstiff.params.Param.to_display>`,
-        the per-log nuisances by their table."""
+        the per-log nuisances by theirs
+        (:data:`~fitstiff.problem.NUISANCE_PARAMS`)."""
         return physical / self.scales[index]
 
     def log_density(self, physical):
