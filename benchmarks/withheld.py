@@ -91,7 +91,8 @@ def run_dataset(dataset_id: str, rate_scale: float = 1.0, short: bool = False,
     wall = time.perf_counter() - start
     gap = d.gap
     before, after, noise = (gap["heldout_rms_N"], gap["final_heldout_rms_N"], gap["noise_N"])
-    ranked = [{"effect": c.effect, "p_value": c.p_value, "accepted": c.accepted,
+    ranked = [{"effect": c.effect, "p_value": c.p_value, "log_p_value": c.log_p_value,
+               "score": c.score, "dof": c.dof, "accepted": c.accepted,
                "shrink": c.shrink, "testable": c.testable} for c in d.candidates]
     return {
         "id": dataset_id, "family": truth["family"], "baseline": truth["baseline"],

@@ -281,3 +281,23 @@ def test_cli_bad_options_exit_2_with_one_line(tmp_path, capsys, argv, fragment):
     assert len(lines) == 1 and fragment in lines[0] and "Traceback" not in err
     assert before == {p: hashlib.sha256(Path(p).read_bytes()).hexdigest() for p in logs}
     assert not (tmp_path / "out" / "diagnosis.json").exists()
+
+
+@pytest.mark.parametrize("dof", [1, 2, 3, 4, 7])
+def test_chi2_log_tail_is_finite_and_exact_far_beyond_scipys_underflow(dof):
+    """Strong effects score far beyond where ``scipy.stats.chi2.logsf`` underflows to -inf;
+    a tie at -inf would rank candidates by the order of the candidate list."""
+    from scipy import stats
+
+    from fitstiff.diagnosis.screen import chi2_logsf
+
+    for x in (3.0, 40.0, 600.0, 1400.0):          # scipy still finite: the same value
+        assert chi2_logsf(x, dof) == pytest.approx(float(stats.chi2.logsf(x, dof)), rel=1e-12)
+    for x in (1600.0, 5e3, 1.3e4):                # scipy -inf: closed forms for dof 1 and 2
+        assert np.isneginf(stats.chi2.logsf(x, dof))
+        value = chi2_logsf(x, dof)
+        if dof == 1:
+            assert value == pytest.approx(np.log(2.0) + stats.norm.logsf(np.sqrt(x)), rel=1e-12)
+        elif dof == 2:
+            assert value == pytest.approx(-x / 2.0, rel=1e-14)
+        assert np.isfinite(value) and value < chi2_logsf(x / 1.01, dof)   # still ordered

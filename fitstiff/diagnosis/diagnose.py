@@ -112,7 +112,7 @@ def diagnose(logs: Sequence[Log], *, baseline: str = "chamber+dahl",
         # refitted in batches of _MAX_REFITS, strongest score first: the next batch only
         # when none of the previous passed, so no significant candidate stays untried
         promising = sorted((s for s in scores if s.testable and s.p_value * m < alpha),
-                           key=lambda s: s.p_value)
+                           key=lambda s: s.log_p)
         tried = {}
         for k, s in enumerate(promising):
             if k and k % _MAX_REFITS == 0 and any(v[3] for v in tried.values()):
@@ -141,6 +141,7 @@ def diagnose(logs: Sequence[Log], *, baseline: str = "chamber+dahl",
                 s_, ho, shrink, passes, why, _, _ = tried[s.effect]
                 decided[s.effect] = Candidate(
                     effect=s.effect, score=s.statistic, dof=s.dof, p_value=s.p_value,
+                    log_p_value=s.log_p,
                     testable=s.testable, heldout_rms_before_N=current.rms_N,
                     heldout_rms_after_N=ho.rms_N, shrink=shrink, converged=ho.converged,
                     regions_improved=_improved(sp, noise, masks, current, ho),
@@ -154,6 +155,7 @@ def diagnose(logs: Sequence[Log], *, baseline: str = "chamber+dahl",
                        f"score not significant (p = {s.p_value:.2g}, needs < {alpha / m:.2g})")
                 decided[s.effect] = Candidate(
                     effect=s.effect, score=s.statistic, dof=s.dof, p_value=s.p_value,
+                    log_p_value=s.log_p,
                     testable=s.testable, round=round_, why=why,
                     parameters=_display(sp, s.one_step, "one_step"))
         passing = [v for v in tried.values() if v[3]]
@@ -183,7 +185,7 @@ def diagnose(logs: Sequence[Log], *, baseline: str = "chamber+dahl",
     unexplained = tuple(_cell(row) for _, row in still.head(20).iterrows())
     ranked = sorted(decided.values(), key=lambda c: (not c.accepted,
                                                      accepted.index(c.effect) if c.accepted
-                                                     else 0, c.p_value))
+                                                     else 0, c.log_p_value))
     detectability = {name: _detectability(first[name]) for name in names if name in first}
     gap = {"heldout_rms_N": baseline_heldout.rms_N, "noise_N": noise_pooled,
            "heldout_rms_per_log_N": list(baseline_heldout.rms_per_log_N),

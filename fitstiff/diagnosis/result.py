@@ -20,6 +20,8 @@ class Candidate:
     dof: int
     p_value: float
     testable: bool
+    #: natural log of ``p_value`` (ranks candidates whose p-values underflow to 0)
+    log_p_value: float = 0.0
     heldout_rms_before_N: float | None = None
     heldout_rms_after_N: float | None = None
     shrink: float | None = None
