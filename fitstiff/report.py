@@ -709,7 +709,7 @@ def _diagnosis_tables(result) -> str:
         det = result.detectability.get(c.effect, {})
         detect = (f"{det['size']:.3g} {det['unit']} ({det['parameter']})" if det.get("testable")
                   else "not testable")
-        rows.append([c.effect, _fmt(c.score, 4), _fmt(c.p_value, 2),
+        rows.append([c.effect, _fmt(c.score, 4), c.p_text,
                      _fmt(c.heldout_rms_before_N, 4), _fmt(c.heldout_rms_after_N, 4),
                      _fmt(c.shrink, 2), "yes" if c.accepted else "no",
                      ", ".join(c.regions_improved) or "-", detect,

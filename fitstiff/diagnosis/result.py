@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Mapping
 
 import numpy as np
@@ -32,6 +33,14 @@ class Candidate:
         default_factory=dict)
     round: int = 1
     why: str = ""
+
+    @property
+    def p_text(self) -> str:
+        """The p-value for reading: two digits, or its power of ten where it underflows to
+        0 (``1e-2739``, from :attr:`log_p_value`)."""
+        if self.p_value > 0 or not (math.isfinite(self.log_p_value) and self.log_p_value < 0):
+            return f"{self.p_value:.2g}"
+        return f"1e{math.floor(self.log_p_value / math.log(10.0)):d}"
 
     def to_dict(self) -> dict[str, object]:
         out = dataclasses.asdict(self)
@@ -155,7 +164,7 @@ class Diagnosis:
             def f(v, fmt):
                 return "-" if v is None else format(v, fmt)
             verdict = "ACCEPTED" if c.accepted else c.why
-            lines.append(f"  {c.effect:<18}{c.score:>10.3g}{c.p_value:>10.2g}"
+            lines.append(f"  {c.effect:<18}{c.score:>10.3g}{c.p_text:>10}"
                          f"{f(c.heldout_rms_before_N, '.4g'):>10}"
                          f"{f(c.heldout_rms_after_N, '.4g'):>10}{f(c.shrink, '.2f'):>8}  "
                          f"{verdict}")
