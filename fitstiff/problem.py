@@ -503,7 +503,8 @@ class Problem:
         ``fn`` is a module-level function (or a method of :class:`Problem`) that reaches the
         data only through its ``problem`` argument; ``options`` are static (hashable) values
         it is specialised on (a solver's tolerances, a noise model). It is compiled with
-        ``equinox.filter_jit`` with this problem's data arrays (the stacked drives,
+        ``jax.jit``, the arguments split as ``equinox.filter_jit`` does (arrays traced, other
+        leaves static and hashable), and this problem's data arrays (the stacked drives,
         measurements and weights, the turning-point errors) passed to the executable as
         arguments: a function closing over the problem would compile them in as constants, a
         copy per function that XLA copies again while compiling (``benchmarks/fit_memory.py``:
