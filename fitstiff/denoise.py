@@ -294,8 +294,7 @@ def smooth_acceleration(displacement: np.ndarray, time: np.ndarray, *,
     upper = np.full(n, np.inf)
     consistent = np.ones(n, dtype=bool)
     out = np.zeros(n)
-    for m in widths:
-        a = _quadratic_curvature(x, t, m)
+    for m, a in zip(widths, _quadratic_curvatures(x, t, widths)):
         half = _ACCEL_GAMMA * _curvature_noise(m, noise, dt)
         lower = np.maximum(lower, a - half)
         upper = np.minimum(upper, a + half)
@@ -315,12 +314,20 @@ def _curvature_noise(m: int, noise: float, dt: float) -> float:
 def _quadratic_curvature(x: np.ndarray, t: np.ndarray, m: int) -> np.ndarray:
     """``2 c2`` of the least-squares parabola through samples ``i - m ... i + m`` (clipped at
     the ends), in each window's own times relative to sample ``i``."""
+    return next(_quadratic_curvatures(x, t, (m,)))
+
+
+def _quadratic_curvatures(x: np.ndarray, t: np.ndarray, widths):
+    """:func:`_quadratic_curvature` for each of the increasing half-widths ``widths`` in
+    turn. The windows are nested, so the sums of one width grow into the next's by its two
+    new offsets: every offset is visited once, not once per width."""
     n = x.shape[0]
     idx = np.arange(n)
     sums = np.zeros((n, 5))          # sum of d^0 ... d^4
     rhs = np.zeros((n, 3))           # sum of y, d y, d^2 y
     scale = float(np.median(np.diff(t))) or 1.0
-    for j in range(-m, m + 1):
+
+    def add(j):
         k = idx + j
         inside = (k >= 0) & (k < n)
         kc = np.clip(k, 0, n - 1)
@@ -331,8 +338,16 @@ def _quadratic_curvature(x: np.ndarray, t: np.ndarray, m: int) -> np.ndarray:
             sums[:, p] += w * d**p
         for p in range(3):
             rhs[:, p] += w * d**p * y
-    a = np.stack([sums[:, 0:3], sums[:, 1:4], sums[:, 2:5]], axis=1)
-    ok = np.abs(np.linalg.det(a)) > 1e-12 * np.maximum(sums[:, 4] * sums[:, 0], 1e-300)
-    a[~ok] = np.eye(3)
-    coef = np.linalg.solve(a, rhs[..., None])[..., 0]
-    return np.where(ok, 2.0 * coef[:, 2] / scale**2, 0.0)
+
+    reached = -1
+    for m in widths:
+        for j in range(reached + 1, m + 1):
+            add(j)
+            if j:
+                add(-j)
+        reached = m
+        a = np.stack([sums[:, 0:3], sums[:, 1:4], sums[:, 2:5]], axis=1)
+        ok = np.abs(np.linalg.det(a)) > 1e-12 * np.maximum(sums[:, 4] * sums[:, 0], 1e-300)
+        a[~ok] = np.eye(3)
+        coef = np.linalg.solve(a, rhs[..., None])[..., 0]
+        yield np.where(ok, 2.0 * coef[:, 2] / scale**2, 0.0)

@@ -142,9 +142,6 @@ class Problem:
         spec = model if isinstance(model, str) else model.spec
         needs = model_needs(model)
         self.displacement_noise = [s.noise for s in self.segmentations]
-        #: lag-1 correlation of each log's displacement noise (``displacement_noise`` is its
-        #: white-equivalent level; the marginal one is ``noise * marginal_scale(rho)``)
-        self.displacement_rho = [noise_floor(log.displacement).rho for log in self.logs]
         self.denoised = [self._want_denoise(denoise, s) for s in self.segmentations]
         self.drives: list[Drive] = []
         for log, seg, den in zip(self.logs, self.segmentations, self.denoised):
@@ -375,6 +372,14 @@ class Problem:
     def displacements(self) -> tuple:
         """The displacement each group drives the model with, ``(L, N)`` per group."""
         return tuple(g.drive.displacement for g in self._groups)
+
+    @functools.cached_property
+    def displacement_rho(self) -> list[float]:
+        """Lag-1 correlation of each log's displacement noise, from
+        :func:`~fitstiff.noise.noise_floor` (``displacement_noise`` is its white-equivalent
+        level; the marginal one is ``noise * marginal_scale(rho)``). Estimated on first use:
+        only the turning points' errors and fit.json need it."""
+        return [noise_floor(log.displacement).rho for log in self.logs]
 
     def reversal_noise(self) -> tuple:
         """Per group ``(L, N)``: the standard error (m) of each log's turning points at their
