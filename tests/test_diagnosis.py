@@ -312,3 +312,23 @@ def test_a_p_value_that_underflows_is_shown_by_its_power_of_ten():
     # a diagnosis.json of an older fitstiff has no log_p_value: the stored p as it is
     assert Candidate.from_dict({"effect": "x", "score": 1e4, "dof": 1, "p_value": 0.0,
                                 "testable": True}).p_text == "0"
+
+
+def test_collinear_groups_join_candidates_the_screen_cannot_order():
+    from fitstiff.diagnosis.screen import Score, collinear_groups
+    from fitstiff.params import Param
+
+    rng = np.random.default_rng(3)
+    a, b = rng.standard_normal(500), rng.standard_normal(500)
+
+    def score(name, column, testable=True):
+        column = None if column is None else column / np.linalg.norm(column)
+        return Score(name, 10.0, 1, 1e-3, -6.9, 1.0, testable, None, 1.0, "p",
+                     Param("p", "-", 1.0, 0.0, 1.0, ""), {}, {}, column)
+
+    scores = [score("heat_transfer", a), score("viscous", b),
+              score("leakage", -(a + 1e-3 * b)),      # anti-parallel counts too
+              score("inertia", a + 0.2 * b), score("chamber", None, testable=False)]
+    groups = collinear_groups(scores)
+    assert [[s.effect for s in g] for g in groups] == [["heat_transfer", "leakage"]]
+    assert collinear_groups(scores, threshold=0.95)[0][-1].effect == "inertia"

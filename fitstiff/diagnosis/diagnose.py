@@ -25,7 +25,7 @@ import numpy as np
 from fitstiff.diagnosis.gap import above_floor, pooled_excess, region_table
 from fitstiff.noise import noise_floor
 from fitstiff.diagnosis.result import Candidate, Diagnosis
-from fitstiff.diagnosis.screen import Score, screen
+from fitstiff.diagnosis.screen import Score, collinear_groups, screen
 from fitstiff.diagnosis.select import folds_for, held_out
 from fitstiff.diagnosis.supermodel import SuperProblem, candidate_names
 from fitstiff.errors import InputError
@@ -43,6 +43,9 @@ MIN_SHRINK = 0.3
 #: few per cent, so a smaller fall cannot be told from its error (on the stribeck set a time
 #: delay of -0.18 ms "removed 30 %" of a 7 mN gap left once stribeck was fitted)
 MIN_GAIN = 0.05
+#: passing candidates whose held-out RMS lies within this share of the noise floor of the best
+#: one's are told apart by their fits to all the data (:func:`_choose`)
+_TIE = 0.01
 _MAX_REFITS = 3
 _MAX_ACCEPT = 4
 _IMPROVED = 0.95      # a region improved when its held-out RMS fell below 95 % of before
@@ -101,6 +104,7 @@ def diagnose(logs: Sequence[Log], *, baseline: str = "chamber+dahl",
     decided: dict[str, Candidate] = {}
     accepted: list[str] = []
     m = len(names)
+    scores: list[Score] = []
     for round_ in range(1, _MAX_ACCEPT + 1):
         remaining = [c for c in names if c not in accepted]
         if not remaining:
@@ -161,10 +165,11 @@ def diagnose(logs: Sequence[Log], *, baseline: str = "chamber+dahl",
         passing = [v for v in tried.values() if v[3]]
         if not passing:
             break
-        s, ho, shrink, _, _, theta_c, hold_c = min(passing, key=lambda v: v[1].rms_N)
+        chosen, theta, losers = _choose(sp, passing, active, weights, noise_pooled)
+        for effect, why in losers.items():
+            decided[effect] = dataclasses.replace(decided[effect], why=why)
+        s, ho, shrink, _, _, theta_c, hold_c = chosen
         active.append(s.effect)
-        theta, ok, _, _ = sp.solve(theta_c, hold_c, sp.model_mask(active),
-                                   sp.nuisance_mask(), weights)
         hold = hold_c
         x = np.asarray(sp.physical(theta, hold, sp.model_mask(active)))
         values = {sp.owners[k].name: float(x[k]) for k in sp.elements(s.effect)}
@@ -183,9 +188,11 @@ def diagnose(logs: Sequence[Log], *, baseline: str = "chamber+dahl",
     final_table = region_table(current.residuals, problem.segmentations, noise, masks)
     still = above_floor(final_table)
     unexplained = tuple(_cell(row) for _, row in still.head(20).iterrows())
+    tie = _tie_order(sp, scores, accepted, theta, hold, active, weights, level=alpha / m)
     ranked = sorted(decided.values(), key=lambda c: (not c.accepted,
                                                      accepted.index(c.effect) if c.accepted
-                                                     else 0, c.log_p_value))
+                                                     else 0,
+                                                     *tie.get(c.effect, (c.log_p_value, 0.0))))
     detectability = {name: _detectability(first[name]) for name in names if name in first}
     gap = {"heldout_rms_N": baseline_heldout.rms_N, "noise_N": noise_pooled,
            "heldout_rms_per_log_N": list(baseline_heldout.rms_per_log_N),
@@ -211,6 +218,65 @@ def diagnose(logs: Sequence[Log], *, baseline: str = "chamber+dahl",
                   "select": clock["select"] - clock["baseline"],
                   "total": clock["end"] - clock["start"]},
         heldout={"before": baseline_heldout.residuals, "after": current.residuals})
+
+
+def _choose(sp: SuperProblem, passing, active, weights, noise: float):
+    """The passing candidate to accept, its fit on all data, and why each tied one lost.
+
+    The lowest held-out RMS wins, unless other candidates come within ``_TIE`` of the noise
+    floor of it: their held-out predictions are then the same to well below the noise (leakage
+    and heat exchange both relax the pressure difference a displacement built up), and the
+    candidates are told apart by their fits to all the data (:func:`_full_fit`, BIC). Each
+    tied candidate costs one more solve on all data.
+    """
+    best = min(passing, key=lambda v: v[1].rms_N)
+    tied = [v for v in passing if v[1].rms_N - best[1].rms_N <= _TIE * noise]
+    if len(tied) == 1:
+        theta, _, _ = _full_fit(sp, best[0], best[5], best[6], active, weights)
+        return best, theta, {}
+    fits = {v[0].effect: _full_fit(sp, v[0], v[5], v[6], active, weights) for v in tied}
+    chosen = min(tied, key=lambda v: fits[v[0].effect][2])
+    if not math.isfinite(fits[chosen[0].effect][2]):
+        chosen = best
+    bic = fits[chosen[0].effect][2]
+    losers = {v[0].effect: (f"fits the held-out data as well as {chosen[0].effect} (RMS within "
+                            f"{_TIE:.0%} of the noise floor) but all the data worse: BIC "
+                            f"+{fits[v[0].effect][2] - bic:.3g}")
+              for v in tied if v is not chosen}
+    return chosen, fits[chosen[0].effect][0], losers
+
+
+def _full_fit(sp: SuperProblem, s: Score, theta, hold, active, weights):
+    """``(theta, converged, BIC)`` of the model ``active`` + ``s.effect`` fitted to all the
+    data from ``(theta, hold)``: ``N log RSS + k log N`` over the ``N`` weighted residual
+    entries, ``k`` the candidate's fitted parameters (the model's other parameters are common
+    to every candidate); infinite when the solve did not converge."""
+    theta, ok, _, cost = sp.solve(theta, hold, sp.model_mask(list(active) + [s.effect]),
+                                  sp.nuisance_mask(), weights)
+    n = float(np.count_nonzero(np.asarray(weights) > 0))
+    k = sp.elements(s.effect, fitted=True).size
+    bic = n * math.log(2.0 * cost) + k * math.log(n) if ok and cost > 0 else math.inf
+    return theta, ok, bic
+
+
+def _tie_order(sp: SuperProblem, scores, accepted, theta, hold, active, weights, *,
+               level: float) -> dict[str, tuple[float, float]]:
+    """Sort keys of the candidates not accepted: the log p-value of the last screen, except
+    within a significant group (best p below ``level``) that the screen cannot order
+    (:func:`~fitstiff.diagnosis.screen.collinear_groups`): there the group's best log p, then
+    the members' BIC on all the data (one solve each)."""
+    keys = {}
+    for group in collinear_groups([s for s in scores if s.effect not in accepted]):
+        lead = min(s.log_p for s in group)
+        if lead >= math.log(level):
+            continue
+        for s in group:
+            hold_c = np.array(hold)
+            for name, value in s.one_step.items():
+                hold_c[sp.problem.par.names.index(name)] = value
+            theta_c = sp.to_theta(theta, hold_c, sp.elements(s.effect, fitted=True))
+            keys[s.effect] = (lead, _full_fit(sp, s, theta_c, hold_c, active, weights)[2])
+    return keys
 
 
 def _maxwell_shape(sp: SuperProblem, theta, hold, active) -> np.ndarray:

@@ -41,7 +41,7 @@ from fitstiff.noise import NoiseFloor, noise_floor
 from fitstiff.diagnosis.supermodel import SuperProblem
 from fitstiff.params import Param
 
-__all__ = ["Score", "screen", "SHAPE_GRIDS", "POWER"]
+__all__ = ["Score", "screen", "collinear_groups", "SHAPE_GRIDS", "POWER", "COLLINEAR_TIE"]
 
 POWER = 0.8
 #: shape parameters scanned by the screen (SI); the first value starts the model
@@ -50,6 +50,8 @@ SHAPE_GRIDS: dict[str, dict[str, tuple[float, ...]]] = {
     "dwell_stiction": {"dwell_tau": (0.3, 3.0), "dwell_decay": (0.1e-3, 0.5e-3)},
 }
 _COLLINEAR = 1e-6    # share of a candidate column left after projection: not testable
+#: correlation of two candidates' projected columns above which the screen cannot order them
+COLLINEAR_TIE = 0.999
 
 
 @dataclasses.dataclass(frozen=True)
@@ -71,6 +73,9 @@ class Score:
     param: Param                   # its metadata (display unit, conversion)
     one_step: Mapping[str, float]  # SI start values of the candidate's parameters
     shape: Mapping[str, float]     # shape values of the best grid point (SI)
+    #: its main direction's filtered column projected off the current model, unit length
+    #: (what :func:`collinear_groups` compares); None when not testable
+    column: np.ndarray | None = dataclasses.field(default=None, repr=False, compare=False)
 
 
 def _ar1_filter(a: np.ndarray, series, rhos) -> np.ndarray:
@@ -176,6 +181,24 @@ def screen(sp: SuperProblem, theta: np.ndarray, hold: np.ndarray, *, active: Seq
     return out, hold
 
 
+def collinear_groups(scores: Sequence[Score], *, threshold: float = COLLINEAR_TIE
+                     ) -> list[list[Score]]:
+    """Groups (two or more) of testable candidates whose projected main columns agree to
+    ``|correlation| >= threshold``: the screen gives them the same statistic up to noise and
+    cannot order them (leakage and heat exchange, to first order both an accumulated
+    relaxation of the pressure a displacement built up, agree to 0.99997)."""
+    testable = [s for s in scores if s.testable and s.column is not None]
+    groups: list[list[Score]] = []
+    for s in testable:
+        for g in groups:
+            if any(abs(float(s.column @ t.column)) >= threshold for t in g):
+                g.append(s)
+                break
+        else:
+            groups.append([s])
+    return [g for g in groups if len(g) > 1]
+
+
 def chi2_logsf(x: float, dof: int) -> float:
     """``log P(chi2_dof > x)``, finite far in the tail. ``scipy.stats.chi2.logsf`` takes the
     log of the survival function, which underflows to ``-inf`` beyond ``x`` of about 1 500
@@ -268,5 +291,6 @@ def _score(effect: str, sp: SuperProblem, tested: np.ndarray, g_cols: np.ndarray
         one_step[o.name] = float(np.clip(v, lo + tiny if lo == o.null else lo,
                                          hi - 1e-9 * abs(hi) if np.isfinite(hi) else np.inf))
     sign = float(np.sign(direction_vec @ step))
+    column = g_perp @ direction_vec
     return Score(effect, statistic, dof, p, log_p, sign, True, None, detectable, main, param,
-                 one_step, {})
+                 one_step, {}, column / np.linalg.norm(column))
