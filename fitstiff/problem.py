@@ -31,7 +31,7 @@ import numpy as np
 
 from fitstiff._jax import jax, jnp
 from fitstiff.denoise import (denoise_displacement, reversal_samples, segment_velocity,
-                              smooth_acceleration, turning_points)
+                              smooth_acceleration, smooth_force, turning_points)
 from fitstiff.drive import Drive, drive_from_log
 from fitstiff.errors import InputError
 from fitstiff.guards import check_logs
@@ -161,6 +161,10 @@ class Problem:
             self.drives.append(drive)
         self.drives = _same_structure(self.drives)
         built = build_model(model, drives=self.drives) if isinstance(model, str) else model
+        if any(t.needs_measured_force for t in built.terms):
+            self.drives = [eqx.tree_at(lambda d: d.measured_force, d, jnp.asarray(
+                smooth_force(log.force, log.time, noise=channel_noise(log.force))))
+                for d, log in zip(self.drives, self.logs)]
         fixed_values = ({k: v for k, v in fix.items() if v is not None}
                         if isinstance(fix, Mapping) else {})
         fixed_names = set(fix)

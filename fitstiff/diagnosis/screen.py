@@ -76,6 +76,13 @@ class Score:
     #: its main direction's filtered column projected off the current model, unit length
     #: (what :func:`collinear_groups` compares); None when not testable
     column: np.ndarray | None = dataclasses.field(default=None, repr=False, compare=False)
+    #: the joint Gauss-Newton step's move of the current model's free entries that goes with
+    #: ``one_step`` (``base_cols`` index -> change; physical units for model parameters, the
+    #: nuisances' own coordinates): ``-B^+ G step``, the baseline parameters the effect was
+    #: projected off taking up what the effect no longer needs them for (a series compliance
+    #: leaves the pre-sliding slope it softened)
+    base_step: Mapping[int, float] = dataclasses.field(default_factory=dict, repr=False,
+                                                      compare=False)
 
 
 def _ar1_filter(a: np.ndarray, series, rhos) -> np.ndarray:
@@ -171,7 +178,8 @@ def screen(sp: SuperProblem, theta: np.ndarray, hold: np.ndarray, *, active: Seq
                 g_cols = jac[:, tested]
             gf = _ar1_filter(g_cols * w[:, None], sp.series, rhos)[keep]
             score = _score(effect, sp, tested, gf, q, r_perp, s2, alpha / m, len(points),
-                           accept=accept, unfiltered=(g_cols * w[:, None])[keep])
+                           accept=accept, unfiltered=(g_cols * w[:, None])[keep],
+                           base=(jf[:, base_cols], base_cols))
             score = dataclasses.replace(score, shape=point)
             if best is None or score.log_p < best.log_p:
                 best = score
@@ -247,7 +255,8 @@ class _AcceptSize:
 
 def _score(effect: str, sp: SuperProblem, tested: np.ndarray, g_cols: np.ndarray,
            q: np.ndarray, r_perp: np.ndarray, s2: float, alpha: float,
-           n_grid: int, *, accept: _AcceptSize, unfiltered: np.ndarray) -> Score:
+           n_grid: int, *, accept: _AcceptSize, unfiltered: np.ndarray,
+           base: tuple[np.ndarray, np.ndarray]) -> Score:
     owners = [sp.owners[k] for k in tested]
     main = owners[0].name.rsplit("_", 1)[0] if owners[0].name.endswith("_1") else owners[0].name
     direction_vec = np.array([1.0 if (o.name == main or o.name.rsplit("_", 1)[0] == main)
@@ -292,5 +301,9 @@ def _score(effect: str, sp: SuperProblem, tested: np.ndarray, g_cols: np.ndarray
                                          hi - 1e-9 * abs(hi) if np.isfinite(hi) else np.inf))
     sign = float(np.sign(direction_vec @ step))
     column = g_perp @ direction_vec
+    b, cols = base
+    taken = np.array([one_step[o.name] - o.null for o in owners])   # the step, as clipped
+    shift = np.linalg.lstsq(b, -(g_cols @ taken), rcond=None)[0] if b.shape[1] else []
     return Score(effect, statistic, dof, p, log_p, sign, True, None, detectable, main, param,
-                 one_step, {}, column / np.linalg.norm(column))
+                 one_step, {}, column / np.linalg.norm(column),
+                 {int(k): float(v) for k, v in zip(cols, shift)})

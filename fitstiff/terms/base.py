@@ -123,6 +123,9 @@ class Term(eqx.Module):
     #: the term uses the acceleration (a smoothed one is built when the displacement is
     #: denoised)
     needs_acceleration: ClassVar[bool] = False
+    #: the term takes the logged force as an input (the problem smooths its noise out first:
+    #: :func:`fitstiff.denoise.smooth_force`)
+    needs_measured_force: ClassVar[bool] = False
     #: roles that modifiers act on: how messages name the role ("'stribeck' modifies ...")
     described: ClassVar[str] = ""
 

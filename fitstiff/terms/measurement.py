@@ -58,12 +58,16 @@ class RigCompliance(_Compliance, SeriesTerm):
 
 class MeasuredForceCompliance(_Compliance, InputTerm):
     """``rig_compliance:measured``: the same series spring, with the piston displacement
-    taken as ``x_sensor - compliance * F_measured`` (the logged force as an input) instead of
-    solving ``x_piston = x_sensor - compliance * F_model`` every step. Equal up to the force
-    noise times the compliance; no Newton iteration in the scan and no coupling of every term
-    to the piston motion, so the rest of the model keeps its all-samples evaluation. The
-    diagnosis screens and refits the effect this way; the simulator uses the series form.
+    taken as ``x_sensor - compliance * F_measured`` (the logged force as an input, its noise
+    smoothed out by :class:`~fitstiff.problem.Problem`) instead of solving
+    ``x_piston = x_sensor - compliance * F_model`` every step. Equal up to the force's
+    remaining error times the compliance; no Newton iteration in the scan and no coupling of
+    every term to the piston motion, so the rest of the model keeps its all-samples
+    evaluation. The diagnosis screens and refits the effect this way; the simulator uses the
+    series form.
     """
+
+    needs_measured_force = True
 
     def transform_input(self, drive, x):
         if drive.measured_force is None:
