@@ -33,6 +33,9 @@ class Candidate:
         default_factory=dict)
     round: int = 1
     why: str = ""
+    #: the effects accepted together with it in one step (its refit, held-out RMS and shrink
+    #: are theirs together), when none passed alone; empty otherwise
+    together: tuple[str, ...] = ()
 
     @property
     def p_text(self) -> str:
@@ -45,6 +48,7 @@ class Candidate:
     def to_dict(self) -> dict[str, object]:
         out = dataclasses.asdict(self)
         out["regions_improved"] = list(self.regions_improved)
+        out["together"] = list(self.together)
         out["parameters"] = {k: dict(v) for k, v in self.parameters.items()}
         return out
 
@@ -53,6 +57,7 @@ class Candidate:
         fields = {f.name for f in dataclasses.fields(cls)}
         kw = {k: v for k, v in data.items() if k in fields}
         kw["regions_improved"] = tuple(kw.get("regions_improved", ()))
+        kw["together"] = tuple(kw.get("together", ()))
         return cls(**kw)
 
 
