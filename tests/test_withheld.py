@@ -202,7 +202,7 @@ def test_quick_run_of_one_null_and_one_effect_through_the_diagnosis():
 
 @pytest.mark.parametrize("dataset, accepted, top1", [
     # held out, leakage predicts 0.12216 N against heat exchange's 0.12219 N (noise 0.12 N):
-    # a tie, which the fits to all the data break for heat exchange (BIC 3.7 lower)
+    # a tie, which the fits to all the data break for heat exchange (BIC 4.0 lower)
     ("single/heat_transfer/2", ["heat_transfer"], "heat_transfer"),
     # a leak below the detectable size: nothing accepted, and the two scores agree to 0.04 in
     # log p; ranked by their fits to all the data, leakage comes first
