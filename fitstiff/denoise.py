@@ -290,16 +290,22 @@ def smooth_acceleration(displacement: np.ndarray, time: np.ndarray, *,
            and _curvature_noise(widest, noise, dt) > _ACCEL_NOISE * typical):
         widest += 1
     widths = [m for m in _ACCEL_WIDTHS if m < widest] + [widest]
-    lower = np.full(n, -np.inf)
-    upper = np.full(n, np.inf)
-    consistent = np.ones(n, dtype=bool)
-    out = np.zeros(n)
-    for m, a in zip(widths, _quadratic_curvatures(x, t, widths)):
-        half = _ACCEL_GAMMA * _curvature_noise(m, noise, dt)
-        lower = np.maximum(lower, a - half)
-        upper = np.minimum(upper, a + half)
+    return _intersect(zip(_quadratic_curvatures(x, t, widths),
+                          (_ACCEL_GAMMA * _curvature_noise(m, noise, dt) for m in widths)),
+                      np.zeros(n))
+
+
+def _intersect(estimates, out: np.ndarray) -> np.ndarray:
+    """The ICI rule: over ``(estimate, half-width)`` pairs of growing windows, per sample the
+    last estimate whose interval ``estimate +- half-width`` still meets every earlier one's
+    (``out`` where none does)."""
+    lower, upper = np.full(out.shape, -np.inf), np.full(out.shape, np.inf)
+    consistent = np.ones(out.shape, dtype=bool)
+    for value, half in estimates:
+        lower = np.maximum(lower, value - half)
+        upper = np.minimum(upper, value + half)
         consistent &= lower <= upper
-        out = np.where(consistent, a, out)
+        out = np.where(consistent, value, out)
     return out
 
 
@@ -390,18 +396,8 @@ def smooth_force(force: np.ndarray, time: np.ndarray | None, *, noise: float) ->
         return y.copy()
     t = np.arange(n, dtype=float) if time is None else np.asarray(time, dtype=float)
     widths = [m for m in _VALUE_WIDTHS if m <= (n - 1) // 2]
-    lower = np.full(n, -np.inf)
-    upper = np.full(n, np.inf)
-    consistent = np.ones(n, dtype=bool)
-    out = y.copy()
-    for m, coef in zip(widths, _local_quadratics(y, t, widths)):
-        value = y + coef[:, 0]
-        half = _VALUE_GAMMA * _value_noise(m, noise)
-        lower = np.maximum(lower, value - half)
-        upper = np.minimum(upper, value + half)
-        consistent &= lower <= upper
-        out = np.where(consistent, value, out)
-    return out
+    return _intersect(((y + coef[:, 0], _VALUE_GAMMA * _value_noise(m, noise))
+                       for m, coef in zip(widths, _local_quadratics(y, t, widths))), y.copy())
 
 
 def _value_noise(m: int, noise: float) -> float:

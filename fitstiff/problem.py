@@ -161,10 +161,11 @@ class Problem:
             self.drives.append(drive)
         self.drives = _same_structure(self.drives)
         built = build_model(model, drives=self.drives) if isinstance(model, str) else model
+        force_noise = [channel_noise(log.force) for log in self.logs]
         if any(t.needs_measured_force for t in built.terms):
             self.drives = [eqx.tree_at(lambda d: d.measured_force, d, jnp.asarray(
-                smooth_force(log.force, log.time, noise=channel_noise(log.force))))
-                for d, log in zip(self.drives, self.logs)]
+                smooth_force(log.force, log.time, noise=sigma)))
+                for d, log, sigma in zip(self.drives, self.logs, force_noise)]
         fixed_values = ({k: v for k, v in fix.items() if v is not None}
                         if isinstance(fix, Mapping) else {})
         fixed_names = set(fix)
@@ -185,8 +186,7 @@ class Problem:
                       "closing_pressure": "closing_pressure" in free}
         self.nuisance_names = [n for n in NUISANCES
                                if n not in self.fixed_nuisances and applicable[n]]
-        self.force_noise = [max(channel_noise(log.force), _FORCE_NOISE_FLOOR)
-                            for log in self.logs]
+        self.force_noise = [max(sigma, _FORCE_NOISE_FLOOR) for sigma in force_noise]
         self.pressure_noise = [
             {c: max(channel_noise(p), _PRESSURE_NOISE_FLOOR)
              for c, p in (("a", log.pressure_a), ("b", log.pressure_b)) if p is not None}

@@ -273,8 +273,8 @@ def _pair(sp: SuperProblem, folds, tried, theta, hold, active, weights, *, curre
     best = None
     gap = current.rms_N - noise
     for a, b in itertools.combinations(top, 2):
-        theta_c, hold_c = _refit_start(sp, a[0], theta, hold, active, weights)
-        theta_c, hold_c = _refit_start(sp, b[0], theta_c, hold_c, active, weights)
+        # from a's refit start (kept in ``tried``), then b's on top of it
+        theta_c, hold_c = _refit_start(sp, b[0], a[5], a[6], active, weights)
         extra = np.concatenate([sp.elements(a[0].effect, fitted=True),
                                 sp.elements(b[0].effect, fitted=True)])
         ho = held_out(sp, folds, theta_c, hold_c, active, extra=extra)

@@ -140,7 +140,8 @@ def screen(sp: SuperProblem, theta: np.ndarray, hold: np.ndarray, *, active: Seq
     jf = _ar1_filter(jac * w[:, None], sp.series, rhos)[keep]
     base_cols = np.concatenate([np.flatnonzero(free_model),
                                 sp.n_model + np.arange(sp.size - sp.n_model)])
-    q = _orthonormal(jf[:, base_cols])
+    base = jf[:, base_cols]
+    q = _orthonormal(base)
     r_perp = rf - q @ (q.T @ rf)
     dof = max(rf.size - q.shape[1], 1)
     s2 = float(r_perp @ r_perp) / dof
@@ -179,7 +180,7 @@ def screen(sp: SuperProblem, theta: np.ndarray, hold: np.ndarray, *, active: Seq
             gf = _ar1_filter(g_cols * w[:, None], sp.series, rhos)[keep]
             score = _score(effect, sp, tested, gf, q, r_perp, s2, alpha / m, len(points),
                            accept=accept, unfiltered=(g_cols * w[:, None])[keep],
-                           base=(jf[:, base_cols], base_cols))
+                           base=(base, base_cols))
             score = dataclasses.replace(score, shape=point)
             if best is None or score.log_p < best.log_p:
                 best = score
