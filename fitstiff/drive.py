@@ -25,6 +25,7 @@ import equinox as eqx
 from fitstiff._jax import jnp
 from fitstiff.errors import InputError
 from fitstiff.log import Log, Rig
+from fitstiff.runs import Runs, find_runs
 
 __all__ = ["Drive", "make_drive", "drive_from_log", "CHAMBER_MODES"]
 
@@ -54,6 +55,10 @@ class Drive(eqx.Module):
     acceleration: jnp.ndarray | None = None
     #: the measured force (N) where a term takes it as an input (``rig_compliance:measured``)
     measured_force: jnp.ndarray | None = None
+    #: the monotone runs of ``displacement`` (:mod:`fitstiff.runs`): friction terms with a
+    #: closed form over a run step run by run; None: sample by sample. Whoever replaces the
+    #: displacement finds them again (:func:`~fitstiff.runs.find_runs`)
+    runs: Runs | None = None
     modes: tuple[str, str] = eqx.field(static=True, default=("closed", "closed"))
     #: per chamber: the logged pressure is an observation of a closed (modelled) chamber
     observed: tuple[bool, bool] = eqx.field(static=True, default=(False, False))
@@ -137,7 +142,7 @@ def make_drive(*, displacement, time=None, rig: Rig | None = None, pressure_a=No
         friction_state0=jnp.asarray(float(friction_state0)),
         force_offset=jnp.asarray(float(force_offset)),
         modes=(modes[0], modes[1]), observed=(observed[0], observed[1]), has_time=has_time,
-        name=name)
+        name=name, runs=find_runs(x))
 
 
 #: shortest closed-chamber length (m) the polytropic law is evaluated at; shorter is

@@ -174,15 +174,19 @@ class Model(eqx.Module):
         """Run the scan: total force, per-term forces and the chamber pressures.
 
         Terms that no modifier acts on are evaluated over all samples at once when they can be
-        (:meth:`~fitstiff.terms.base.Term.run_all`: stateless terms, the polytropic chamber),
-        unless a series compliance couples every term to the piston motion; only the rest is
-        stepped in the ``lax.scan``. The results are the same; the scan body is smaller (under
-        ``vmap`` over the posterior's walkers its per-step cost dominates).
+        (:meth:`~fitstiff.terms.base.Term.run_all`: stateless terms, the polytropic chamber,
+        Dahl over the drive's monotone runs), unless a series compliance couples every term to
+        the piston motion; only the rest is stepped in the ``lax.scan``. The results are the
+        same; the scan body is smaller (under ``vmap`` over the posterior's walkers its
+        per-step cost dominates).
         """
         modifiers = self.terms_of(Modifier)
         forcing = self.terms_of(ForceSource)
         series = self.terms_of(SeriesTerm)
         steps = self.steps(drive)
+        if drive.runs is not None and self.terms_of(InputTerm):
+            # the runs are the drive's displacement's, not the transformed one's
+            drive = dataclasses.replace(drive, runs=None)
         targeted = tuple(m.targets for m in modifiers)
         direct = {}
         if not series:

@@ -39,6 +39,7 @@ from fitstiff.log import Log
 from fitstiff.model import Model, build_model, difference_acceleration, model_needs, time_steps
 from fitstiff.noise import marginal_scale, noise_floor
 from fitstiff.params import CONSTANT_JACOBIAN, Param, Parameterization, find_param, named_params
+from fitstiff.runs import find_runs, pad_runs
 from fitstiff.segmentation import REGIONS, Segmentation, estimate_noise, segment
 from fitstiff.terms import FrictionBase
 
@@ -150,7 +151,8 @@ class Problem:
                                    needs_supply="closing_pressure" not in free)
             if den:
                 x = denoise_displacement(log.displacement, seg.reversals, noise=seg.noise)
-                drive = eqx.tree_at(lambda d: d.displacement, drive, jnp.asarray(x))
+                drive = dataclasses.replace(drive, displacement=jnp.asarray(x),
+                                            runs=find_runs(x))
                 if log.time is not None:
                     v = segment_velocity(x, log.time, seg.reversals, noise=seg.noise)
                     a = (smooth_acceleration(log.displacement, log.time, noise=seg.noise)
@@ -251,7 +253,7 @@ class Problem:
         groups = []
         for index in stacks:
             n_max = max(len(self.drives[i]) for i in index)
-            drives = [_pad_drive(self.drives[i], n_max) for i in index]
+            drives = _same_runs([_pad_drive(self.drives[i], n_max) for i in index])
             stacked = jax.tree.map(lambda *xs: jnp.stack(xs), *drives)
             force = np.stack([_pad(self.logs[i].force, n_max) for i in index])
             weight = np.stack([_pad(self.sample_weights[i], n_max, fill=0.0)
@@ -529,16 +531,21 @@ class Problem:
             # 13 us against 51 us for ``equinox.filter_jit`` re-partitioning the problem
             # (a posterior step calls one function of about 1 ms)
             data, structure = eqx.partition(self._arrays(), eqx.is_array)
+            # and flattened once: a flat list of arrays is flattened in C++ per call, the
+            # problem's modules in Python (about 80 us of a 1 ms posterior call)
+            leaves, tree = jax.tree.flatten(data)
 
-            def run(data, arg_data, arg_static):
-                problem = self._with_arrays(eqx.combine(data, structure))
-                return bound(problem, *eqx.combine(arg_data, arg_static))
+            def run(leaves, arg_data, arg_static):
+                arrays = eqx.combine(jax.tree.unflatten(tree, leaves), structure)
+                return bound(self._with_arrays(arrays), *eqx.combine(arg_data, arg_static))
 
             jitted = jax.jit(run, static_argnums=2)
 
             def call(*args):
+                if all(isinstance(a, (np.ndarray, jax.Array)) for a in args):
+                    return jitted(leaves, args, (None,) * len(args))
                 arg_data, arg_static = eqx.partition(args, eqx.is_array)
-                return jitted(data, arg_data, arg_static)
+                return jitted(leaves, arg_data, arg_static)
 
             self._compiled[key] = call
         return self._compiled[key]
@@ -612,7 +619,19 @@ def _pad_drive(drive: Drive, n: int) -> Drive:
         acceleration=(None if drive.acceleration is None
                       else jnp.asarray(_pad(drive.acceleration, n, fill=0.0))),
         measured_force=(None if drive.measured_force is None
-                        else jnp.asarray(_pad(drive.measured_force, n))))
+                        else jnp.asarray(_pad(drive.measured_force, n))),
+        runs=(None if drive.runs is None
+              else pad_runs(drive.runs, n, int(drive.runs.before.shape[0]))))
+
+
+def _same_runs(drives: list[Drive]) -> list[Drive]:
+    """Drives of one stack (one length) with runs of one count, or none when one of them
+    has none (a stack is one ``vmap``-ed evaluation: one structure)."""
+    if any(d.runs is None for d in drives):
+        return [dataclasses.replace(d, runs=None) for d in drives]
+    count = max(int(d.runs.before.shape[0]) for d in drives)
+    return [dataclasses.replace(d, runs=pad_runs(d.runs, len(d), count))
+            for d in drives]
 
 
 def _same_structure(drives: list[Drive]) -> list[Drive]:

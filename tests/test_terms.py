@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import dataclasses
+
+import equinox as eqx
 import numpy as np
 import pytest
 from conftest import polyline, triangle
@@ -201,11 +204,116 @@ def test_terms_evaluated_outside_the_scan_equal_stepping(spec, rig, drive_kw):
         np.testing.assert_allclose(np.asarray(got), np.asarray(want), rtol=1e-12)
 
 
-@pytest.mark.parametrize("spec", ["dahl", "lugre", "maxwell_slip:3", "coulomb"])
+@pytest.mark.parametrize("spec", ["dahl:alpha", "lugre", "maxwell_slip:3", "coulomb"])
 def test_terms_with_a_memory_are_stepped(spec):
     t, x = triangle([1e-3])
     model, drive, _ = run(spec, t, x)
     assert model.terms[0].run_all(model.steps(drive), drive) is None
+
+
+# -- Dahl over monotone runs -------------------------------------------------------------------
+def stepped_dahl(term, drive, steps):
+    from fitstiff.terms import Modulation
+
+    def body(state, s):
+        return term.step(state, s, drive, Modulation())
+
+    return np.asarray(jax.lax.scan(body, term.init(drive), steps)[1])
+
+
+def plateaued_triangle():
+    """A triangle program with dwells (steps of exactly 0) at and between reversals, and a
+    noisy copy of it that turns back on itself 40-odd times."""
+    t, x = triangle([0.1e-3, 0.4e-3, 1e-3])
+    x = np.repeat(x, np.where(np.arange(x.size) % 97 == 0, 6, 1))
+    t = np.arange(x.size) * 1e-3
+    noisy = x + 0.05e-6 * np.random.default_rng(3).standard_normal(x.size)
+    return t, x, noisy
+
+
+@pytest.mark.parametrize("noisy", [False, True])
+@pytest.mark.parametrize("state0", [0.0, -0.7])
+def test_dahl_over_monotone_runs_equals_stepping(noisy, state0):
+    from fitstiff.runs import count_runs
+
+    t, x, x_noisy = plateaued_triangle()
+    x = x_noisy if noisy else x
+    drive = make_drive(displacement=x, time=t, friction_state0=state0)
+    assert drive.runs.before.shape[0] == count_runs(x)
+    assert 7 <= count_runs(x) <= x.size // 4
+    model = build_model("dahl", drives=[drive])
+    term = Parameterization(model).with_values(model, {"sigma0": 60e3, "Fc": 15.0}).terms[0]
+    steps = model.steps(drive)
+    states, forces = term.run_all(steps, drive)
+    stepped = stepped_dahl(term, drive, steps)
+    np.testing.assert_allclose(np.asarray(forces), stepped, rtol=0, atol=1e-11 * 15.0)
+    np.testing.assert_allclose(np.asarray(states), stepped, rtol=0, atol=1e-11 * 15.0)
+
+
+def test_dahl_over_runs_differentiates_like_stepping():
+    """Gradients in the parameters agree everywhere; in the displacement wherever the
+    displacement moves on both sides of the sample (at a step of exactly 0 the stepped form's
+    derivative decays toward 0 and the run's continues its direction: both are one-sided
+    derivatives at a kink)."""
+    t, x, _ = plateaued_triangle()
+    drive = make_drive(displacement=x, time=t, friction_state0=0.3)
+    model = build_model("dahl", drives=[drive])
+    par = Parameterization(model)
+    y0 = par.to_unconstrained(par.with_values(model, {"sigma0": 60e3, "Fc": 15.0}))
+
+    def forces(y, x, stepped):
+        d = dataclasses.replace(drive, runs=None) if stepped else drive
+        return par.to_model(y, model).predict(eqx.tree_at(lambda d: d.displacement, d, x))
+
+    x = jnp.asarray(x)
+    for wrt in (0, 1):
+        by_runs = np.asarray(jax.jacfwd(forces, argnums=wrt)(y0, x, False))
+        by_steps = np.asarray(jax.jacfwd(forces, argnums=wrt)(y0, x, True))
+        if wrt == 1:
+            moving = np.diff(np.asarray(x), prepend=np.nan) != 0
+            cols = moving & np.roll(moving, -1)
+            by_runs, by_steps = by_runs[:, cols], by_steps[:, cols]
+        scale = np.max(np.abs(by_steps))
+        np.testing.assert_allclose(by_runs, by_steps, rtol=0, atol=1e-9 * scale)
+
+
+def test_dahl_on_a_displacement_against_its_runs_is_nan_not_wrong():
+    t, x, _ = plateaued_triangle()
+    drive = make_drive(displacement=x, time=t)
+    model = build_model("dahl", drives=[drive])
+    assert np.all(np.isfinite(np.asarray(model.predict(drive))))
+    moved = eqx.tree_at(lambda d: d.displacement, drive, jnp.asarray(x[::-1].copy()))
+    assert np.all(np.isnan(np.asarray(model.predict(moved))))
+
+
+def test_dahl_is_stepped_where_runs_do_not_pay():
+    t = np.arange(2000) * 1e-3
+    x = 1e-6 * np.random.default_rng(0).standard_normal(t.size)   # turns back every ~2 samples
+    drive = make_drive(displacement=x, time=t)
+    model = build_model("dahl", drives=[drive])
+    assert drive.runs is None
+    assert model.terms[0].run_all(model.steps(drive), drive) is None
+
+
+def test_runs_of_a_hand_made_displacement():
+    from fitstiff.runs import count_runs, find_runs, pad_runs
+
+    x = np.repeat([0.0, 0.0, 1.0, 2.0, 2.0, 1.0, 1.0, 0.0, 0.5, 0.5], 2)
+    assert count_runs(x) == 3
+    runs = find_runs(x)
+    np.testing.assert_array_equal(np.asarray(runs.index), [0] * 10 + [1] * 6 + [2] * 4)
+    np.testing.assert_array_equal(np.asarray(runs.before), [-1, 9, 15])
+    np.testing.assert_array_equal(np.asarray(runs.sign), [1, -1, 1])
+    np.testing.assert_array_equal(np.asarray(runs.start(jnp.asarray(x))), [0.0, 2.0, 0.0])
+    steps = jnp.diff(jnp.asarray(x), prepend=0.0)
+    assert bool(runs.holds(steps)) and not bool(runs.holds(-steps))
+    padded = pad_runs(runs, 23, 5)
+    np.testing.assert_array_equal(np.asarray(padded.index)[-4:], [2, 2, 2, 2])
+    np.testing.assert_array_equal(np.asarray(padded.before), [-1, 9, 15, 22, 22])
+    np.testing.assert_array_equal(np.asarray(padded.sign), [1, -1, 1, 0, 0])
+    assert find_runs(x[::2]) is None            # 3 runs in 10 samples: stepping pays
+    assert count_runs(np.zeros(5)) == 1
+    np.testing.assert_array_equal(np.asarray(find_runs(np.zeros(5)).sign), [0.0])
 
 
 # -- gradients and vmap ----------------------------------------------------------------------

@@ -3,9 +3,10 @@
 A model is a sum of terms (``chamber+dahl+viscous``). The composition
 (:mod:`fitstiff.model`) runs the terms together in one ``lax.scan`` over the samples of a
 :class:`~fitstiff.drive.Drive`; force sources that need no scan
-(:meth:`ForceSource.run_all`: stateless ones, the polytropic chamber) are evaluated over all
-samples at once. Every term is an instance of exactly one role, an abstract base class whose
-methods are what the composition calls on it:
+(:meth:`ForceSource.run_all`: stateless ones, the polytropic chamber, Dahl over the monotone
+runs of the displacement) are evaluated over all samples at once. Every term is an instance
+of exactly one role, an abstract base class whose methods are what the composition calls on
+it:
 
 :class:`~fitstiff.terms.chamber.Chamber`  the gas spring; its step returns the chamber force.
 :class:`FrictionBase`  a seal-friction base (Dahl, LuGre, Maxwell-slip, Coulomb); its step
@@ -164,7 +165,8 @@ class ForceSource(Term):
         The composition uses it only when no modifier acts on the term and no series
         compliance couples the terms, and it must equal stepping from :meth:`init` with a
         neutral :class:`Modulation`. Stateless terms get it here (their step ``vmap``-ed over
-        the samples); terms whose state has a closed form (the polytropic chamber) override it.
+        the samples); terms whose state has a closed form (the polytropic chamber; Dahl over the
+        monotone runs of the drive, :mod:`fitstiff.runs`) override it.
         """
         if jax.tree_util.tree_leaves(self.init(drive)):
             return None

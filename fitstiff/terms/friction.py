@@ -20,7 +20,7 @@ import dataclasses
 import equinox as eqx
 import numpy as np
 
-from fitstiff._jax import jnp
+from fitstiff._jax import jax, jnp
 from fitstiff.errors import InputError
 from fitstiff.params import Param
 from fitstiff.terms.base import FrictionBase, FrictionEstimate, Modulation, Step
@@ -79,6 +79,31 @@ class Dahl(FrictionBase):
                                      0.0))
         F_new = jnp.where(d == 0, F, d * fc * (1.0 - jnp.sign(y) * ay_new))
         return F_new, F_new
+
+    def run_all(self, steps: Step, drive):
+        """With ``alpha = 1``, over the monotone runs of the drive (:mod:`fitstiff.runs`):
+        ``F = s Fc + (F0 - s Fc) exp(-sigma0 |x - x0| / Fc)`` in a run of direction ``s``
+        from its start ``(x0, F0)``; only the run starts are stepped. NaN where the
+        displacement goes against its run's direction (a displacement other than the one the
+        runs were found in)."""
+        runs = drive.runs
+        if self.fit_alpha or runs is None:
+            return None
+        x0 = runs.start(steps.x)
+        travel = runs.sign * (jnp.concatenate([x0[1:], steps.x[-1:]]) - x0)
+        rate = self.sigma0 / self.Fc
+
+        def across(F, run):
+            s, travel = run
+            return s * self.Fc + (F - s * self.Fc) * jnp.exp(-rate * travel), F
+
+        _, F0 = jax.lax.scan(across, self.init(drive), (runs.sign, travel))
+        s = runs.sign[runs.index]                          # per sample: the data alone
+        travelled = s * (steps.x - x0[runs.index])
+        gap = (F0 - runs.sign * self.Fc)[runs.index]       # F0 - s Fc of each sample's run
+        F = jnp.where(runs.holds(steps.dx), s * self.Fc + gap * jnp.exp(-rate * travelled),
+                      jnp.nan)
+        return F, F
 
     def start(self, estimate: FrictionEstimate, *, share: float = 1.0) -> Dahl:
         new = dataclasses.replace(self, Fc=estimate.level * share)
