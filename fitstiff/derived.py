@@ -24,7 +24,6 @@ autodiff. Their display units are fixed by their names' suffixes (one table here
 
 from __future__ import annotations
 
-
 import equinox as eqx
 import numpy as np
 
@@ -105,7 +104,8 @@ def presliding_curve(model, *, travel=None):
     time = jnp.concatenate([jnp.zeros(1), jnp.cumsum(jnp.abs(jnp.diff(x)))]) / _QUASI_STATIC_SPEED
     n = x.shape[0]
     # the runs of the curve's shape (down, then up): the travel scales it, it adds none
-    shape = np.concatenate([-np.linspace(0.0, 1.0, _SAMPLES), np.linspace(-1.0, 1.0, _SAMPLES)[1:]])
+    shape = np.concatenate([-np.linspace(0.0, 1.0, _SAMPLES),
+                            np.linspace(-1.0, 1.0, _SAMPLES)[1:]])
     template = make_drive(displacement=shape, time=np.arange(n, dtype=float))
     drive = eqx.tree_at(lambda d: (d.displacement, d.time), template, (x, time))
     force = sub.run(drive).force

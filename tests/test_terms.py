@@ -223,7 +223,7 @@ def stepped_dahl(term, drive, steps):
 
 def plateaued_triangle():
     """A triangle program with dwells (steps of exactly 0) at and between reversals, and a
-    noisy copy of it that turns back on itself 40-odd times."""
+    noisy copy of it that turns back on itself 241 times (at the dwells)."""
     t, x = triangle([0.1e-3, 0.4e-3, 1e-3])
     x = np.repeat(x, np.where(np.arange(x.size) % 97 == 0, 6, 1))
     t = np.arange(x.size) * 1e-3
