@@ -99,14 +99,12 @@ def presliding_curve(model, *, travel=None):
         for b in bases:
             if hasattr(b, "delta"):
                 travel = jnp.maximum(travel, 2.0 * jnp.max(b.delta) * level)
-    u = jnp.linspace(0.0, 1.0, _SAMPLES)
-    x = jnp.concatenate([-u, -1.0 + 2.0 * u[1:]]) * travel
+    # the curve's shape (down, then up) gives the drive its runs: the travel scales it
+    u = np.linspace(0.0, 1.0, _SAMPLES)
+    shape = np.concatenate([-u, -1.0 + 2.0 * u[1:]])
+    x = jnp.asarray(shape) * travel
     time = jnp.concatenate([jnp.zeros(1), jnp.cumsum(jnp.abs(jnp.diff(x)))]) / _QUASI_STATIC_SPEED
-    n = x.shape[0]
-    # the runs of the curve's shape (down, then up): the travel scales it, it adds none
-    shape = np.concatenate([-np.linspace(0.0, 1.0, _SAMPLES),
-                            np.linspace(-1.0, 1.0, _SAMPLES)[1:]])
-    template = make_drive(displacement=shape, time=np.arange(n, dtype=float))
+    template = make_drive(displacement=shape, time=np.arange(shape.size, dtype=float))
     drive = eqx.tree_at(lambda d: (d.displacement, d.time), template, (x, time))
     force = sub.run(drive).force
     branch = slice(_SAMPLES - 1, None)

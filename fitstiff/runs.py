@@ -68,12 +68,12 @@ def find_runs(x) -> Runs | None:
     sample)."""
     x = np.asarray(x, dtype=float)
     n = x.shape[0]
-    if count_runs(x) > max(1, _MAX_RUN_FRACTION * n):
-        return None
     step = np.sign(np.diff(x, prepend=x[:1]))
     moving = np.flatnonzero(step)
     # a run starts at a moving sample whose direction differs from the previous moving one
     first = moving[1:][step[moving[1:]] != step[moving[:-1]]]
+    if 1 + first.size > max(1, _MAX_RUN_FRACTION * n):
+        return None
     index = np.zeros(n, dtype=int)
     index[first] = 1
     index = np.cumsum(index)
