@@ -19,6 +19,9 @@ Each chamber has a static mode decided from the log:
 
 from __future__ import annotations
 
+import dataclasses
+import math
+
 import numpy as np
 import equinox as eqx
 
@@ -27,7 +30,7 @@ from fitstiff.errors import InputError
 from fitstiff.log import Log, Rig
 from fitstiff.runs import Runs, find_runs
 
-__all__ = ["Drive", "make_drive", "drive_from_log", "CHAMBER_MODES"]
+__all__ = ["Drive", "make_drive", "drive_from_log", "log_volume_span", "CHAMBER_MODES"]
 
 CHAMBER_MODES = ("measured", "vented", "closed")
 
@@ -57,8 +60,13 @@ class Drive(eqx.Module):
     measured_force: jnp.ndarray | None = None
     #: the monotone runs of ``displacement`` (:mod:`fitstiff.runs`): friction terms with a
     #: closed form over a run step run by run; None: sample by sample. Whoever replaces the
-    #: displacement finds them again (:func:`~fitstiff.runs.find_runs`)
+    #: displacement finds them again (:meth:`with_displacement`)
     runs: Runs | None = None
+    #: a bound (a power of two) on ``|log(V / V')|`` of a closed chamber between any two
+    #: samples of ``displacement`` (:func:`log_volume_span`): the chamber evaluates its
+    #: polytropic powers over all samples as a short series when it is small. None: unknown
+    #: (``exp``). Whoever replaces the displacement finds it again (:meth:`with_displacement`)
+    log_volume_span: float | None = eqx.field(static=True, default=None)
     modes: tuple[str, str] = eqx.field(static=True, default=("closed", "closed"))
     #: per chamber: the logged pressure is an observation of a closed (modelled) chamber
     observed: tuple[bool, bool] = eqx.field(static=True, default=(False, False))
@@ -67,6 +75,14 @@ class Drive(eqx.Module):
 
     def __len__(self) -> int:
         return int(self.displacement.shape[0])
+
+    def with_displacement(self, x) -> Drive:
+        """This drive moved by the displacement ``x`` (NumPy, ``(n,)``), with the runs and
+        the chamber span of ``x``."""
+        x = np.asarray(x, dtype=float)
+        return dataclasses.replace(
+            self, displacement=jnp.asarray(x), runs=find_runs(x),
+            log_volume_span=log_volume_span(x, float(self.l_a0), float(self.l_b0), self.modes))
 
     @property
     def seal_pressure(self):
@@ -142,12 +158,26 @@ def make_drive(*, displacement, time=None, rig: Rig | None = None, pressure_a=No
         friction_state0=jnp.asarray(float(friction_state0)),
         force_offset=jnp.asarray(float(force_offset)),
         modes=(modes[0], modes[1]), observed=(observed[0], observed[1]), has_time=has_time,
-        name=name, runs=find_runs(x))
+        name=name, runs=find_runs(x), log_volume_span=log_volume_span(x, l_a0, l_b0, modes))
 
 
 #: shortest closed-chamber length (m) the polytropic law is evaluated at; shorter is
 #: metal on metal, and the law's pressure would overflow
 MIN_CHAMBER_LENGTH = 1e-6
+
+
+def log_volume_span(x: np.ndarray, l_a0: float, l_b0: float, modes) -> float | None:
+    """The largest ``|log(V / V')|`` of a closed chamber between two samples of ``x``, rounded
+    up to a power of two (drives of one stack share one, and each value is a compilation);
+    None without a closed chamber of finite length (or samples)."""
+    x = np.asarray(x, dtype=float)
+    lengths = [np.array([l0 + sign * x.min(), l0 + sign * x.max()])
+               for mode, l0, sign in zip(modes, (l_a0, l_b0), (1.0, -1.0))
+               if mode == "closed" and x.size]
+    if not lengths or not all(np.all(np.isfinite(v)) and np.all(v > 0) for v in lengths):
+        return None
+    span = max(abs(math.log(v[1] / v[0])) for v in lengths)
+    return 2.0 ** math.ceil(math.log2(max(span, 2.0 ** -40)))
 
 
 def _check_chamber_lengths(x: np.ndarray, l_a0: float, l_b0: float, modes, *, rig: Rig,

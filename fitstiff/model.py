@@ -184,9 +184,10 @@ class Model(eqx.Module):
         forcing = self.terms_of(ForceSource)
         series = self.terms_of(SeriesTerm)
         steps = self.steps(drive)
-        if drive.runs is not None and self.terms_of(InputTerm):
-            # the runs are the drive's displacement's, not the transformed one's
-            drive = dataclasses.replace(drive, runs=None)
+        if self.terms_of(InputTerm):
+            # the runs and the chamber span are the drive's displacement's, not the
+            # transformed one's
+            drive = dataclasses.replace(drive, runs=None, log_volume_span=None)
         targeted = tuple(m.targets for m in modifiers)
         direct = {}
         if not series:

@@ -777,6 +777,8 @@ def _linear_draw_rows(p: Problem, rows, *, noise: NoiseModel, layout: Layout, si
 def _batched(fn: Callable, rows: np.ndarray, *, batch: int) -> np.ndarray:
     """``fn`` (compiled for ``batch`` rows) over all ``rows``, padding the last chunk."""
     n = rows.shape[0]
+    if n == batch:                     # a sampler's call: no copies
+        return np.asarray(fn(rows))
     padded = np.concatenate([rows, np.repeat(rows[-1:], (-n) % batch, axis=0)])
     out = [np.asarray(fn(padded[i:i + batch]))
            for i in range(0, padded.shape[0], batch)]

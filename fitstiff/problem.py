@@ -39,7 +39,7 @@ from fitstiff.log import Log
 from fitstiff.model import Model, build_model, difference_acceleration, model_needs, time_steps
 from fitstiff.noise import marginal_scale, noise_floor
 from fitstiff.params import CONSTANT_JACOBIAN, Param, Parameterization, find_param, named_params
-from fitstiff.runs import find_runs, pad_runs
+from fitstiff.runs import pad_runs
 from fitstiff.segmentation import REGIONS, Segmentation, estimate_noise, segment
 from fitstiff.terms import FrictionBase
 
@@ -151,8 +151,7 @@ class Problem:
                                    needs_supply="closing_pressure" not in free)
             if den:
                 x = denoise_displacement(log.displacement, seg.reversals, noise=seg.noise)
-                drive = dataclasses.replace(drive, displacement=jnp.asarray(x),
-                                            runs=find_runs(x))
+                drive = drive.with_displacement(x)
                 if log.time is not None:
                     v = segment_velocity(x, log.time, seg.reversals, noise=seg.noise)
                     a = (smooth_acceleration(log.displacement, log.time, noise=seg.noise)
@@ -253,7 +252,7 @@ class Problem:
         groups = []
         for index in stacks:
             n_max = max(len(self.drives[i]) for i in index)
-            drives = _same_runs([_pad_drive(self.drives[i], n_max) for i in index])
+            drives = _same_closed_forms([_pad_drive(self.drives[i], n_max) for i in index])
             stacked = jax.tree.map(lambda *xs: jnp.stack(xs), *drives)
             force = np.stack([_pad(self.logs[i].force, n_max) for i in index])
             weight = np.stack([_pad(self.sample_weights[i], n_max, fill=0.0)
@@ -624,14 +623,17 @@ def _pad_drive(drive: Drive, n: int) -> Drive:
               else pad_runs(drive.runs, n, int(drive.runs.before.shape[0]))))
 
 
-def _same_runs(drives: list[Drive]) -> list[Drive]:
-    """Drives of one stack (one length) with runs of one count, or none when one of them
-    has none (a stack is one ``vmap``-ed evaluation: one structure)."""
+def _same_closed_forms(drives: list[Drive]) -> list[Drive]:
+    """Drives of one stack (one length) with one structure for the closed forms (a stack is
+    one ``vmap``-ed evaluation): runs of one count, or none when one of them has none; the
+    widest chamber span, or none when one of them has none."""
+    spans = [d.log_volume_span for d in drives]
+    span = None if None in spans else max(spans)
     if any(d.runs is None for d in drives):
-        return [dataclasses.replace(d, runs=None) for d in drives]
+        return [dataclasses.replace(d, runs=None, log_volume_span=span) for d in drives]
     count = max(int(d.runs.before.shape[0]) for d in drives)
-    return [dataclasses.replace(d, runs=pad_runs(d.runs, len(d), count))
-            for d in drives]
+    return [dataclasses.replace(d, runs=pad_runs(d.runs, len(d), count),
+                                log_volume_span=span) for d in drives]
 
 
 def _same_structure(drives: list[Drive]) -> list[Drive]:

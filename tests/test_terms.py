@@ -211,6 +211,82 @@ def test_terms_with_a_memory_are_stepped(spec):
     assert model.terms[0].run_all(model.steps(drive), drive) is None
 
 
+
+# -- the chamber's powers as a series ----------------------------------------------------------
+@pytest.mark.parametrize("span", [2.0**-30, 2.0**-12, 2.0**-8, 2.0**-5])
+def test_polytropic_series_equals_exp_with_its_derivatives(span):
+    from fitstiff.terms.chamber import SERIES_EXPONENT_LIMIT, polytropic_ratio, series_terms
+
+    assert series_terms(span) is not None
+    logs = jnp.asarray(np.random.default_rng(3).uniform(-span, span, 2000))
+    for n in (1.0, 1.4, 1.67, -SERIES_EXPONENT_LIMIT, SERIES_EXPONENT_LIMIT):
+        got = np.asarray(polytropic_ratio(logs, n, span=span))
+        want = np.exp(n * np.asarray(logs))
+        np.testing.assert_allclose(got, want, rtol=4 * 2.0**-52, atol=0)
+        by_n = jax.grad(lambda m: polytropic_ratio(logs, m, span=span).sum())(n)
+        np.testing.assert_allclose(by_n, np.sum(np.asarray(logs) * want), rtol=1e-13,
+                                   atol=1e-13 * np.sum(np.abs(np.asarray(logs) * want)))
+        by_log = jax.jacfwd(lambda v: polytropic_ratio(v, n, span=span))(logs)
+        np.testing.assert_allclose(np.diag(np.asarray(by_log)), n * want, rtol=1e-14, atol=0)
+
+
+def test_polytropic_series_is_nan_outside_its_bounds_and_exp_beyond_its_terms():
+    from fitstiff.terms.chamber import SERIES_EXPONENT_LIMIT, polytropic_ratio, series_terms
+
+    span = 2.0**-8
+    logs = jnp.linspace(-span, span, 101)
+    assert np.all(np.isnan(np.asarray(polytropic_ratio(logs, SERIES_EXPONENT_LIMIT + 0.5,
+                                                       span=span))))
+    wide = logs.at[7].set(2.5 * span)          # a log ratio past the span it was promised
+    assert np.all(np.isnan(np.asarray(polytropic_ratio(wide, 1.4, span=span))))
+    assert series_terms(None) is None and series_terms(0.25) is None
+    np.testing.assert_array_equal(np.asarray(polytropic_ratio(logs * 64, 1.4, span=0.25)),
+                                  np.asarray(jnp.exp(1.4 * logs * 64)))
+    terms = [series_terms(2.0**-k) for k in (30, 12, 8, 5)]
+    assert terms == sorted(terms) and terms[0] < terms[-1]
+
+
+def test_log_volume_span_of_a_hand_made_drive():
+    import math
+
+    from fitstiff.drive import log_volume_span
+
+    x = np.array([0.0, -1e-3, 4e-3, 2e-3])
+    true = max(math.log(0.104 / 0.099), math.log(0.201 / 0.196))
+    span = log_volume_span(x, 0.1, 0.2, ("closed", "closed"))
+    assert span == 2.0 ** round(math.log2(span)) and true <= span < 2 * true
+    only_b = log_volume_span(x, 0.1, 0.2, ("vented", "closed"))
+    assert math.log(0.201 / 0.196) <= only_b < 2 * math.log(0.201 / 0.196)
+    assert log_volume_span(x, 0.1, 0.2, ("measured", "vented")) is None
+    assert log_volume_span(x, float("nan"), 0.2, ("closed", "closed")) is None
+    assert log_volume_span(x, 5e-4, 0.2, ("closed", "closed")) is None   # length <= 0
+
+
+def test_stacked_drives_share_the_widest_span():
+    from fitstiff.problem import _same_closed_forms
+
+    t, x = triangle([1e-3])
+    drive = make_drive(displacement=x, time=t)
+    spans = [d.log_volume_span for d in _same_closed_forms(
+        [dataclasses.replace(drive, log_volume_span=2.0**-8),
+         dataclasses.replace(drive, log_volume_span=2.0**-6)])]
+    assert spans == [2.0**-6, 2.0**-6]
+    spans = [d.log_volume_span for d in _same_closed_forms(
+        [dataclasses.replace(drive, log_volume_span=2.0**-8), drive])]
+    assert drive.log_volume_span is None and spans == [None, None]
+
+
+def test_the_benchmark_log_takes_the_series():
+    """The chamber of a pre-sliding log's problem (denoised drive) evaluates its powers as a
+    series (``benchmarks/posterior_speed.py``)."""
+    from fitstiff._testing.speed import make_log
+    from fitstiff.problem import Problem
+    from fitstiff.terms.chamber import series_terms
+
+    problem = Problem([make_log()], "chamber+dahl")
+    span = problem._groups[0].drive.log_volume_span
+    assert span is not None and series_terms(span) is not None
+
 # -- Dahl over monotone runs -------------------------------------------------------------------
 def stepped_dahl(term, drive, steps):
     from fitstiff.terms import Modulation
