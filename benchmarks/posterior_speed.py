@@ -6,8 +6,20 @@ realistic noise), fitted by least squares, then:
 - **fitstiff**: :class:`fitstiff.posterior.LogPosterior` (default AR(1) noise model, default
   priors, transforms' log-Jacobians) evaluated on 32 walkers at once: one compiled, ``vmap``-ed
   call.
-  Each round times ``--calls`` consecutive calls (per call: their mean), as a sampler makes
-  them.
+  Each round times two blocks of ``--calls`` consecutive calls (per call: their mean) after
+  the reference's block: the first block (``speedup_cold``) starts right after the
+  reference's ~50 ms of single-threaded Python, the second (``speedup``) follows it, warm, as a
+  sampler's calls follow each other. Timed one by one, the first calls after the reference
+  took 1.8 ms falling to 1.2 ms by the 20th, against 0.9 ms warm (the second core idles during
+  the reference and XLA splits the large loops over both; pinned to one core the calls took
+  1.25-1.3 ms from the first), and inside ``sample_posterior`` the 16-walker calls took 0.58 ms
+  (median of 6 000), the warm rate: the cold block measures the benchmark's alternation, not
+  the sampler.
+- **sampler**: emcee's ensemble sampler with fitstiff's moves (:data:`~fitstiff.posterior.MOVES`)
+  and :class:`~fitstiff.posterior.LogPosterior` on half the ensemble per call, as
+  :func:`~fitstiff.posterior.sample_posterior` runs it, ``--sampler-steps`` steps timed:
+  log-posterior evaluations per second of a running chain (the proposals and emcee's own
+  work included), against the same reference rate (``sampler_speedup``).
 - **reference**: the same log-posterior as a user would write it with NumPy: the per-sample
   loop of :func:`benchmarks.fit_speed.reference_residuals` (exact Dahl step, exact polytropic
   chamber) called once per walker, the same AR(1) likelihood with the turning-point errors
@@ -29,12 +41,13 @@ import tempfile
 import time
 from pathlib import Path
 
+import emcee
 import numpy as np
 
 from benchmarks.fit_speed import reference_residuals
 from fitstiff._testing.speed import make_log
 from fitstiff.fitting import fit_problem
-from fitstiff.posterior import log_posterior, sample_posterior
+from fitstiff.posterior import DEFAULT_MOVES, MOVES, log_posterior, sample_posterior
 from fitstiff.problem import Problem
 
 WALKERS = 32
@@ -80,7 +93,9 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=20)
     parser.add_argument("--steps", type=int, default=5000)
     parser.add_argument("--calls", type=int, default=20,
-                        help="consecutive fitstiff calls timed per round (default 20)")
+                        help="consecutive fitstiff calls per timed block (default 20)")
+    parser.add_argument("--sampler-steps", type=int, default=1000,
+                        help="emcee steps timed for the sampler's rate (default 1000)")
     parser.add_argument("--json", metavar="FILE")
     args = parser.parse_args()
     log = make_log()
@@ -97,21 +112,23 @@ def main() -> None:
     # REFERENCE_WALKERS of them (scaled to 32); the speedup is the median of the rounds'
     # ratios, so a change of the host's speed during the run (other tenants: the same
     # commit measured 9 000 to 16 000 fitstiff evaluations/s in sequential runs) cancels
-    # fitstiff is timed over --calls consecutive calls per round (per call: their mean), as
-    # a sampler calls it; one call alone after the reference's ~40 ms of Python ran about
-    # 1.5-2 x slower (the XLA threads and caches start cold)
-    jax_times, ref_times = [], []
+    # fitstiff is timed in two blocks of --calls consecutive calls per round (per call:
+    # their mean): right after the reference (cold) and then warm, as a sampler calls it
+    cold_times, jax_times, ref_times = [], [], []
     for _ in range(args.repeats):
-        t0 = time.perf_counter()
-        for _ in range(args.calls):
-            lp(coords)
-        jax_times.append((time.perf_counter() - t0) / args.calls)
         t0 = time.perf_counter()
         for c in coords[:REFERENCE_WALKERS]:
             reference_log_posterior(c, problem, lp.noise)
         ref_times.append((time.perf_counter() - t0) * WALKERS / REFERENCE_WALKERS)
+        for times in (cold_times, jax_times):
+            t0 = time.perf_counter()
+            for _ in range(args.calls):
+                lp(coords)
+            times.append((time.perf_counter() - t0) / args.calls)
     ratios = np.array(ref_times) / np.array(jax_times)
+    cold_ratios = np.array(ref_times) / np.array(cold_times)
     jax_s, ref_s = float(np.median(jax_times)), float(np.median(ref_times))
+    sampler_rate = _sampler_rate(fit, lp, coords, steps=args.sampler_steps)
     # log-posteriors are defined up to a constant (both drop different normalisations):
     # the two must differ by the same constant for every walker
     difference = ref_values - np.asarray(jax_values)
@@ -133,8 +150,15 @@ def main() -> None:
         "speedup": float(np.median(ratios)),
         "speedup_rounds_q10_q90": [float(np.quantile(ratios, 0.1)),
                                    float(np.quantile(ratios, 0.9))],
+        "speedup_cold": float(np.median(cold_ratios)),
+        "speedup_cold_rounds_q10_q90": [float(np.quantile(cold_ratios, 0.1)),
+                                        float(np.quantile(cold_ratios, 0.9))],
+        "fitstiff_cold_evals_per_s": WALKERS / float(np.median(cold_times)),
+        "sampler_evals_per_s": sampler_rate,
+        "sampler_speedup": sampler_rate / (WALKERS / ref_s),
+        "sampler_steps": args.sampler_steps,
         "rounds": args.repeats,
-        "fitstiff_calls_per_round": args.calls,
+        "fitstiff_calls_per_block": args.calls,
         "difference_spread_log_posterior": agree,
         "fitstiff_first_call_s_incl_compile": compile_s,
         "full_run_steps": post.diagnostics.steps,
@@ -148,6 +172,18 @@ def main() -> None:
         print(f"{k:36s} {v}")
     if args.json:
         Path(args.json).write_text(json.dumps(report, indent=2))
+
+
+def _sampler_rate(fit, lp, coords: np.ndarray, *, steps: int) -> float:
+    """Log-posterior evaluations per second of an emcee chain run as ``sample_posterior``
+    runs it (fitstiff's moves, half the ensemble per call), from ``coords``."""
+    half = log_posterior(fit, batch=WALKERS // 2)
+    sampler = emcee.EnsembleSampler(WALKERS, coords.shape[1], half, vectorize=True,
+                                    moves=MOVES[DEFAULT_MOVES]())
+    sampler.run_mcmc(coords, 50, progress=False)              # compiled, warm
+    t0 = time.perf_counter()
+    sampler.run_mcmc(None, steps, progress=False)
+    return WALKERS * steps / (time.perf_counter() - t0)
 
 
 if __name__ == "__main__":
