@@ -62,7 +62,7 @@ class Drive(eqx.Module):
     #: closed form over a run step run by run; None: sample by sample. Whoever replaces the
     #: displacement finds them again (:meth:`with_displacement`)
     runs: Runs | None = None
-    #: a bound (a power of two) on ``|log(V / V')|`` of a closed chamber between any two
+    #: a bound (a power of two) on ``|log(V(x[0]) / V(x))|`` of a closed chamber over the
     #: samples of ``displacement`` (:func:`log_volume_span`): the chamber evaluates its
     #: polytropic powers over all samples as a short series when it is small. None: unknown
     #: (``exp``). Whoever replaces the displacement finds it again (:meth:`with_displacement`)
@@ -167,16 +167,17 @@ MIN_CHAMBER_LENGTH = 1e-6
 
 
 def log_volume_span(x: np.ndarray, l_a0: float, l_b0: float, modes) -> float | None:
-    """The largest ``|log(V / V')|`` of a closed chamber between two samples of ``x``, rounded
-    up to a power of two (drives of one stack share one, and each value is a compilation);
-    None without a closed chamber of finite length (or samples)."""
+    """The largest ``|log(V(x[0]) / V(x))|`` of a closed chamber over the samples of ``x`` (the
+    closed form's powers are taken from the first sample), rounded up to a power of two
+    (drives of one stack share one, and each value is a compilation); None without a closed
+    chamber of finite length (or samples)."""
     x = np.asarray(x, dtype=float)
-    lengths = [np.array([l0 + sign * x.min(), l0 + sign * x.max()])
+    lengths = [np.array([l0 + sign * x[0], l0 + sign * x.min(), l0 + sign * x.max()])
                for mode, l0, sign in zip(modes, (l_a0, l_b0), (1.0, -1.0))
                if mode == "closed" and x.size]
     if not lengths or not all(np.all(np.isfinite(v)) and np.all(v > 0) for v in lengths):
         return None
-    span = max(abs(math.log(v[1] / v[0])) for v in lengths)
+    span = max(abs(math.log(v[k] / v[0])) for v in lengths for k in (1, 2))
     return 2.0 ** math.ceil(math.log2(max(span, 2.0 ** -40)))
 
 

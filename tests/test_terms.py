@@ -251,12 +251,12 @@ def test_log_volume_span_of_a_hand_made_drive():
 
     from fitstiff.drive import log_volume_span
 
-    x = np.array([0.0, -1e-3, 4e-3, 2e-3])
-    true = max(math.log(0.104 / 0.099), math.log(0.201 / 0.196))
+    x = np.array([0.0, -1e-3, 4e-3, 2e-3])          # from the first sample
+    true = max(math.log(0.104 / 0.1), math.log(0.2 / 0.196))
     span = log_volume_span(x, 0.1, 0.2, ("closed", "closed"))
     assert span == 2.0 ** round(math.log2(span)) and true <= span < 2 * true
     only_b = log_volume_span(x, 0.1, 0.2, ("vented", "closed"))
-    assert math.log(0.201 / 0.196) <= only_b < 2 * math.log(0.201 / 0.196)
+    assert math.log(0.2 / 0.196) <= only_b < 2 * math.log(0.2 / 0.196)
     assert log_volume_span(x, 0.1, 0.2, ("measured", "vented")) is None
     assert log_volume_span(x, float("nan"), 0.2, ("closed", "closed")) is None
     assert log_volume_span(x, 5e-4, 0.2, ("closed", "closed")) is None   # length <= 0
