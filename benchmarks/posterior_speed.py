@@ -11,8 +11,8 @@ realistic noise), fitted by least squares, then:
   reference's ~50 ms of single-threaded Python, the second (``speedup``) follows it, warm, as a
   sampler's calls follow each other. Timed one by one, the first calls after the reference
   took 1.8 ms falling to 1.2 ms by the 20th, against 0.9 ms warm (the second core idles during
-  the reference and XLA splits the large loops over both; pinned to one core the calls took
-  1.25-1.3 ms from the first), and inside ``sample_posterior`` the 16-walker calls took 0.58 ms
+  the reference and XLA splits the large loops over both; pinned to one core the first call
+  took 1.8 ms and those from the third 1.25-1.3 ms), and inside ``sample_posterior`` the 16-walker calls took 0.58 ms
   (median of 6 000), the warm rate: the cold block measures the benchmark's alternation, not
   the sampler.
 - **sampler**: emcee's ensemble sampler with fitstiff's moves (:data:`~fitstiff.posterior.MOVES`)
@@ -128,7 +128,7 @@ def main() -> None:
     ratios = np.array(ref_times) / np.array(jax_times)
     cold_ratios = np.array(ref_times) / np.array(cold_times)
     jax_s, ref_s = float(np.median(jax_times)), float(np.median(ref_times))
-    sampler_rate = _sampler_rate(fit, lp, coords, steps=args.sampler_steps)
+    sampler_rate = _sampler_rate(fit, coords, steps=args.sampler_steps)
     # log-posteriors are defined up to a constant (both drop different normalisations):
     # the two must differ by the same constant for every walker
     difference = ref_values - np.asarray(jax_values)
@@ -174,7 +174,7 @@ def main() -> None:
         Path(args.json).write_text(json.dumps(report, indent=2))
 
 
-def _sampler_rate(fit, lp, coords: np.ndarray, *, steps: int) -> float:
+def _sampler_rate(fit, coords: np.ndarray, *, steps: int) -> float:
     """Log-posterior evaluations per second of an emcee chain run as ``sample_posterior``
     runs it (fitstiff's moves, half the ensemble per call), from ``coords``."""
     half = log_posterior(fit, batch=WALKERS // 2)
