@@ -629,10 +629,9 @@ def _same_closed_forms(drives: list[Drive]) -> list[Drive]:
     widest chamber span, or none when one of them has none."""
     spans = [d.log_volume_span for d in drives]
     span = None if None in spans else max(spans)
-    if any(d.runs is None for d in drives):
-        return [dataclasses.replace(d, runs=None, log_volume_span=span) for d in drives]
-    count = max(int(d.runs.before.shape[0]) for d in drives)
-    return [dataclasses.replace(d, runs=pad_runs(d.runs, len(d), count),
+    count = (None if any(d.runs is None for d in drives)
+             else max(int(d.runs.before.shape[0]) for d in drives))
+    return [dataclasses.replace(d, runs=None if count is None else pad_runs(d.runs, len(d), count),
                                 log_volume_span=span) for d in drives]
 
 
