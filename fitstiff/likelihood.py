@@ -314,6 +314,42 @@ class _Marginal:
         flat = np.bincount(series[precision == 0], minlength=len(layout.series))
         return cls(tuple(blocks), np.asarray(order), inverse, series, flat, linear)
 
+    def restricted(self, keep: np.ndarray, sub: Layout) -> _Marginal:
+        """The terms of the series ``keep`` (positions in the layout built with, in order)
+        alone, spans in ``sub`` (the layout of those series): exact, since ``(P + A'A)^-1``
+        is block-diagonal by series (no column spans two)."""
+        position = {int(s): j for j, s in enumerate(keep)}
+        cols = np.flatnonzero(np.isin(self.series, keep))
+        renumber = np.full(self.series.size, -1)
+        renumber[cols] = np.arange(cols.size)
+        blocks, order, start = [], [], 0
+        for span, block in self.blocks:
+            width = block.shape[1]
+            s = int(self.series[self.order[start]])
+            if s in position:
+                blocks.append((sub.series[position[s]].span, block))
+                order.extend(renumber[self.order[start:start + width]])
+            start += width
+        linear = int(np.sum(cols >= self.series.size - self.linear))
+        return _Marginal(tuple(blocks), np.asarray(order, dtype=int),
+                         self.inverse[np.ix_(cols, cols)],
+                         np.asarray([position[int(s)] for s in self.series[cols]], dtype=int),
+                         self.flat[np.asarray(keep, dtype=int)], linear)
+
+    def reduction(self, series: int, whitened: np.ndarray) -> np.ndarray:
+        """``(A_s'V)' M_s (A_s'V)`` for whitened columns ``V`` of series ``series`` (rows: its
+        span): what integrating its columns out takes from the Gram matrix ``V'V``."""
+        cols = np.flatnonzero(self.series == series)
+        if not cols.size:
+            return np.zeros((whitened.shape[1],) * 2)
+        start = 0
+        for _, block in self.blocks:
+            if self.series[self.order[start]] == series:
+                break
+            start += block.shape[1]
+        av = block.T @ whitened                 # block columns are ``cols`` in order
+        return av.T @ self.inverse[np.ix_(cols, cols)] @ av
+
     def project(self, e):
         """``A'e`` ``(m + k,)``."""
         parts = jnp.concatenate([e[span] @ jnp.asarray(block) for span, block in self.blocks])
@@ -427,8 +463,37 @@ class _Quadratic(NoiseModel):
         members = _membership(m.series, np.ones(m.series.size, bool), len(layout.series))
         return z, q - reduction @ members
 
+    def restricted(self, keep: Sequence[int], layout: Layout, sub: Layout) -> _Quadratic:
+        """This model for the series ``keep`` of ``layout`` alone (``sub``: their layout),
+        e.g. those of one channel: the same likelihood terms for them."""
+        keep = np.asarray(keep, dtype=int)
+        marginal = None if self.marginal is None else self.marginal.restricted(keep, sub)
+        return dataclasses.replace(self, marginal=marginal, **self._series_settings(keep))
+
+    def _series_settings(self, keep: np.ndarray) -> dict[str, object]:
+        """The per-series settings of the series ``keep`` (for :meth:`restricted`)."""
+        return {}
+
+    def gram(self, columns: np.ndarray, series: int, layout: Layout) -> np.ndarray:
+        """``(K, K)`` ``G``: the sum of squares of ``series`` (its columns integrated out) is
+        ``c' G c`` when its residuals are ``columns @ c`` (``columns``: ``(length, K)`` over
+        the series' span)."""
+        span = layout.series[series].span
+        full = np.zeros((layout.size, columns.shape[1]))
+        full[span] = columns
+        whiten = jax.vmap(lambda c: self.whiten(c, layout), in_axes=1, out_axes=1)
+        v = np.asarray(whiten(jnp.asarray(full)))[span]
+        g = v.T @ v
+        if self.marginal is not None:
+            g = g - self.marginal.reduction(series, v)
+        return 0.5 * (g + g.T)
+
     def log_likelihood(self, residuals, layout: Layout):
-        q = self._squares(residuals, layout)
+        return self.squares_likelihood(self._squares(residuals, layout), layout)
+
+    def squares_likelihood(self, q, layout: Layout):
+        """The log-likelihood (up to a constant) of the per-series sums of squares ``q``
+        ``(S,)`` (whitened, integrated columns reduced)."""
         if self.sigma is None:
             # the scale integrated out: q^(-(n - k)/2) with k flat columns in the series
             return -0.5 * jnp.sum(jnp.asarray(self.dof(layout)) * jnp.log(q))
@@ -533,6 +598,12 @@ class AR1(_Quadratic):
     name: ClassVar[str] = "ar1"
     phi: tuple[float, ...] | None = None
     marginal: _Marginal | None = dataclasses.field(default=None, repr=False)
+
+    def _series_settings(self, keep):
+        phi = self.phi
+        if phi is None or np.ndim(phi) == 0 or len(phi) == 1:       # one value for all
+            return {}
+        return {"phi": tuple(phi[i] for i in keep)}
 
     def _estimated(self, residuals, layout):
         if self.phi is not None:

@@ -141,6 +141,18 @@ class Model(eqx.Module):
         """Whether drives need the rig values of the chamber force."""
         return bool(self.terms_of(Chamber))
 
+    def closed_form_chamber(self) -> Chamber | None:
+        """The chamber term when its modelled pressures are the closed form ``p0 * (V(x[0]) /
+        V(x))**n`` of the drive's displacement (:meth:`~fitstiff.terms.chamber.Chamber.run_all`,
+        as :meth:`run` evaluates it): no modifier acts on the chamber, no series compliance
+        couples it to the force, no input term transforms the displacement. None otherwise
+        (and without a chamber)."""
+        chambers = self.terms_of(Chamber)
+        if (not chambers or self.terms_of(SeriesTerm) or self.terms_of(InputTerm)
+                or any(isinstance(chambers[0], m.targets) for m in self.terms_of(Modifier))):
+            return None
+        return chambers[0]
+
     # -- evaluation -------------------------------------------------------------------------
     def steps(self, drive: Drive) -> Step:
         """Per-sample scan inputs (after input terms such as the time delay)."""

@@ -41,7 +41,7 @@ from fitstiff.noise import marginal_scale, noise_floor
 from fitstiff.params import CONSTANT_JACOBIAN, Param, Parameterization, find_param, named_params
 from fitstiff.runs import pad_runs
 from fitstiff.segmentation import REGIONS, Segmentation, estimate_noise, segment
-from fitstiff.terms import FrictionBase
+from fitstiff.terms import Chamber, FrictionBase
 
 __all__ = ["Problem", "NUISANCES", "OPTIONAL_NUISANCES", "PROBLEM_OPTIONS", "ResidualSeries",
            "channel_noise"]
@@ -67,6 +67,8 @@ OPTIONAL_NUISANCES = ("closing_pressure",)
 #: a log shorter than this times the longest of its stack is run in a stack of its own
 #: (``benchmarks/posterior_default.py``: four logs of 3 200-12 800 samples)
 PAD_RATIO = 0.7
+#: the observed channels of a log, in the order of the residual vector
+CHANNELS = ("force", "pressure_a", "pressure_b")
 _DEFAULT_CLOSING_PA = 5e5      # gauge start value when neither rig nor log says more
 _PRESSURE_NOISE_FLOOR = 10.0   # Pa, below any real sensor
 _FORCE_NOISE_FLOOR = 1e-3      # N
@@ -358,16 +360,20 @@ class Problem:
                                + [nuisances[n] for n in self.nuisance_names])
 
     # -- evaluation -----------------------------------------------------------------------
-    def residual_series(self) -> list[ResidualSeries]:
+    def residual_series(self, channels: Sequence[str] = CHANNELS) -> list[ResidualSeries]:
         """The layout of :meth:`residuals`: one entry per log and observed channel, in the
         order of the residual vector. Each covers its log's padded length in time order;
-        samples outside ``mask`` (padding, zero weight) have residual exactly 0."""
+        samples outside ``mask`` (padding, zero weight) have residual exactly 0.
+        ``channels``: only those of :data:`CHANNELS` (the layout of ``residuals(...,
+        channels=)``)."""
         out, start = [], 0
         for g in self._groups:
             n = g.force.shape[1]
-            channels = [("force", g.weight)] + [
+            channels_here = [("force", g.weight)] + [
                 (f"pressure_{c}", w) for c, w in zip("ab", g.pressure_weight) if w is not None]
-            for channel, weight in channels:
+            for channel, weight in channels_here:
+                if channel not in channels:
+                    continue
                 for row, i in enumerate(g.index):
                     out.append(ResidualSeries(i, channel, slice(start, start + n),
                                               np.asarray(weight[row]) > 0))
@@ -454,22 +460,57 @@ class Problem:
         return [jax.vmap(model.run)(self._group_drive(g, nuisances, x))
                 for g, x in zip(self._groups, displacements)]
 
-    def residuals(self, theta, displacements=None):
-        """Whitened residual vector (model - data), padded entries exactly 0."""
-        return self.model_residuals(*self.unpack(theta), displacements)
+    def residuals(self, theta, displacements=None, *, channels: Sequence[str] = CHANNELS):
+        """Whitened residual vector (model - data), padded entries exactly 0; ``channels``:
+        only the series of those channels (:meth:`residual_series` with them)."""
+        return self.model_residuals(*self.unpack(theta), displacements, channels=channels)
 
-    def model_residuals(self, model, nuisances, displacements=None):
+    def model_residuals(self, model, nuisances, displacements=None, *,
+                        channels: Sequence[str] = CHANNELS):
         """:meth:`residuals` of a given model and nuisance values."""
         parts = []
         for group, pred in zip(self._groups,
                                self.model_predictions(model, nuisances, displacements)):
-            parts.append(((pred.force - group.force) * group.weight).ravel())
+            if "force" in channels:
+                parts.append(((pred.force - group.force) * group.weight).ravel())
             for c, measured in enumerate(group.pressure):
-                if measured is None:
+                if measured is None or CHANNELS[1 + c] not in channels:
                     continue
                 modelled = pred.pressure_a if c == 0 else pred.pressure_b
                 parts.append(((modelled - measured) * group.pressure_weight[c]).ravel())
         return jnp.concatenate(parts)
+
+    def closing_pressures(self, theta):
+        """``(n_logs, 2)``: each log's absolute pressure of chambers A and B at its first
+        sample, as the model starts from it (the drive's, or the ``closing_pressure``
+        nuisance's)."""
+        nuisances = self.nuisances(theta)
+        rows = [None] * self.n_logs
+        for g in self._groups:
+            drive = self._group_drive(g, nuisances)
+            for row, i in enumerate(g.index):
+                rows[i] = jnp.stack([drive.p_a0[row], drive.p_b0[row]])
+        return jnp.stack(rows)
+
+    def pressure_closed_forms(self) -> list[tuple[int, int, np.ndarray, np.ndarray, np.ndarray]]:
+        """Per pressure series of :meth:`residuals` (in order), when the model's pressures are
+        their closed form (:meth:`Model.closed_form_chamber
+        <fitstiff.model.Model.closed_form_chamber>`) ``p = p0 * exp(n * log_ratio)``:
+        ``(log, chamber (0: A, 1: B), log_ratio, measured, weight)``, NumPy arrays over the
+        series' padded length, ``p0`` the log's :meth:`closing_pressures`; the residual is
+        ``(p - measured) * weight``. Empty when the pressures have no closed form."""
+        if self.model.closed_form_chamber() is None:
+            return []
+        out = []
+        for g in self._groups:
+            ratios = [np.asarray(r) for r in Chamber.log_ratios(g.drive, g.drive.displacement)]
+            for c, measured in enumerate(g.pressure):
+                if measured is None:
+                    continue
+                for row, i in enumerate(g.index):
+                    out.append((i, c, ratios[c][row], np.asarray(measured[row]),
+                                np.asarray(g.pressure_weight[c][row])))
+        return out
 
     def per_log(self, theta) -> list[dict[str, np.ndarray]]:
         """Per log (in order): predicted force, per-term forces and pressures, unpadded."""

@@ -163,19 +163,26 @@ class Chamber(ForceSource):
         """:meth:`step` over all samples without heat exchange or leakage: the per-step
         polytropic ratios telescope to ``p = p0 (V(x0) / V(x))**n`` from the first sample."""
         one = jnp.ones_like(steps.x)
-        x0 = steps.x[0]
         p_a, p_b = drive.p_a0 * one, drive.p_b0 * one
         if "closed" in drive.modes:
             # gas_spring.chamber_pressures written as exp(n log r), like step: under vmap over
             # walkers the logs are shared and only the power runs per walker (with r**n the
             # 32-walker chamber+dahl residuals took 8.4 ms instead of 3.1 ms)
             span = drive.log_volume_span
-            p_a = p_a * polytropic_ratio(
-                jnp.log((drive.l_a0 + x0) / (drive.l_a0 + steps.x)), self.n, span=span)
-            p_b = p_b * polytropic_ratio(
-                jnp.log((drive.l_b0 - x0) / (drive.l_b0 - steps.x)), self.n, span=span)
+            log_a, log_b = self.log_ratios(drive, steps.x)
+            p_a = p_a * polytropic_ratio(log_a, self.n, span=span)
+            p_b = p_b * polytropic_ratio(log_b, self.n, span=span)
         state = (p_a, p_b, one, one)
         return state, self.force(state, steps, drive)
+
+    @staticmethod
+    def log_ratios(drive, x):
+        """``log(V(x[0]) / V(x))`` of chambers A and B over the displacement ``x`` (the last
+        axis): the closed form of :meth:`run_all` is ``p = p0 * exp(n * log_ratio)``. Works
+        on a stack of drives (leading log axis) as on one."""
+        x0 = x[..., :1]
+        l_a, l_b = (jnp.asarray(length)[..., None] for length in (drive.l_a0, drive.l_b0))
+        return jnp.log((l_a + x0) / (l_a + x)), jnp.log((l_b - x0) / (l_b - x))
 
     def force(self, state, s: Step, drive):
         """Chamber force (N, + toward the B cap) of a state at one step (or all samples)."""
