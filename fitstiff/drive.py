@@ -67,6 +67,11 @@ class Drive(eqx.Module):
     #: polytropic powers over all samples as a short series when it is small. None: unknown
     #: (``exp``). Whoever replaces the displacement finds it again (:meth:`with_displacement`)
     log_volume_span: float | None = eqx.field(static=True, default=None)
+    #: ``log(V(x[0]) / V(x))`` of chambers A and B over the samples of ``displacement``
+    #: (:func:`log_volume_ratios`), given with :attr:`log_volume_span`: the chamber's closed
+    #: form reads them instead of taking two logs per sample and call. Whoever replaces the
+    #: displacement drops or finds them again (:meth:`moved`, :meth:`with_displacement`)
+    log_volume_ratios: tuple[jnp.ndarray, jnp.ndarray] | None = None
     modes: tuple[str, str] = eqx.field(static=True, default=("closed", "closed"))
     #: per chamber: the logged pressure is an observation of a closed (modelled) chamber
     observed: tuple[bool, bool] = eqx.field(static=True, default=(False, False))
@@ -77,12 +82,20 @@ class Drive(eqx.Module):
         return int(self.displacement.shape[0])
 
     def with_displacement(self, x) -> Drive:
-        """This drive moved by the displacement ``x`` (NumPy, ``(n,)``), with the runs and
-        the chamber span of ``x``."""
+        """This drive moved by the displacement ``x`` (NumPy, ``(n,)``), with the runs, the
+        chamber span and the log volume ratios of ``x``."""
         x = np.asarray(x, dtype=float)
+        span = log_volume_span(x, float(self.l_a0), float(self.l_b0), self.modes)
         return dataclasses.replace(
-            self, displacement=jnp.asarray(x), runs=find_runs(x),
-            log_volume_span=log_volume_span(x, float(self.l_a0), float(self.l_b0), self.modes))
+            self, displacement=jnp.asarray(x), runs=find_runs(x), log_volume_span=span,
+            log_volume_ratios=log_volume_ratios(x, float(self.l_a0), float(self.l_b0), span))
+
+    def moved(self, x) -> Drive:
+        """This drive with the displacement ``x`` (traced: a small change of it, such as the
+        turning points' errors), its log volume ratios dropped (the chamber takes them from
+        ``x``); the runs and the span stay, and their closed forms give NaN where ``x``
+        leaves them."""
+        return dataclasses.replace(self, displacement=x, log_volume_ratios=None)
 
     @property
     def seal_pressure(self):
@@ -146,6 +159,7 @@ def make_drive(*, displacement, time=None, rig: Rig | None = None, pressure_a=No
             l_b0 = stroke - x0 + (rig.dead_length_b or 0.0)
             _check_chamber_lengths(x, l_a0, l_b0, modes, rig=rig, name=name)
     p0 = (supply if supply is not None else 0.0) + p_amb
+    span = log_volume_span(x, l_a0, l_b0, modes)
     zeros = np.zeros(n)
     return Drive(
         time=jnp.asarray(t), displacement=jnp.asarray(x),
@@ -158,7 +172,8 @@ def make_drive(*, displacement, time=None, rig: Rig | None = None, pressure_a=No
         friction_state0=jnp.asarray(float(friction_state0)),
         force_offset=jnp.asarray(float(force_offset)),
         modes=(modes[0], modes[1]), observed=(observed[0], observed[1]), has_time=has_time,
-        name=name, runs=find_runs(x), log_volume_span=log_volume_span(x, l_a0, l_b0, modes))
+        name=name, runs=find_runs(x), log_volume_span=span,
+        log_volume_ratios=log_volume_ratios(x, l_a0, l_b0, span))
 
 
 #: shortest closed-chamber length (m) the polytropic law is evaluated at; shorter is
@@ -179,6 +194,19 @@ def log_volume_span(x: np.ndarray, l_a0: float, l_b0: float, modes) -> float | N
         return None
     span = max(abs(math.log(v[k] / v[0])) for v in lengths for k in (1, 2))
     return 2.0 ** math.ceil(math.log2(max(span, 2.0 ** -40)))
+
+
+def log_volume_ratios(x: np.ndarray, l_a0: float, l_b0: float,
+                      span: float | None) -> tuple[jnp.ndarray, jnp.ndarray] | None:
+    """``log(V(x[0]) / V(x))`` of chambers A and B (effective lengths ``l_a0 + x`` and
+    ``l_b0 - x``) over the samples of ``x``, when the drive has a chamber ``span``
+    (:func:`log_volume_span`; None: None)."""
+    if span is None:
+        return None
+    x = np.asarray(x, dtype=float)
+    with np.errstate(all="ignore"):     # a chamber that is not closed may have no length
+        return (jnp.asarray(np.log((l_a0 + x[0]) / (l_a0 + x))),
+                jnp.asarray(np.log((l_b0 - x[0]) / (l_b0 - x))))
 
 
 def _check_chamber_lengths(x: np.ndarray, l_a0: float, l_b0: float, modes, *, rig: Rig,

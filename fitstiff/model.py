@@ -199,7 +199,8 @@ class Model(eqx.Module):
         if self.terms_of(InputTerm):
             # the runs and the chamber span are the drive's displacement's, not the
             # transformed one's
-            drive = dataclasses.replace(drive, runs=None, log_volume_span=None)
+            drive = dataclasses.replace(drive, runs=None, log_volume_span=None,
+                                        log_volume_ratios=None)
         targeted = tuple(m.targets for m in modifiers)
         direct = {}
         if not series:

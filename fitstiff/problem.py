@@ -430,7 +430,7 @@ class Problem:
         idx = jnp.asarray(group.index)
         drive = group.drive
         if displacement is not None:
-            drive = eqx.tree_at(lambda d: d.displacement, drive, displacement)
+            drive = drive.moved(displacement)
         if "offset" in nuisances:
             drive = eqx.tree_at(lambda d: d.force_offset, drive, nuisances["offset"][idx])
         if "friction_state0" in nuisances:
@@ -503,7 +503,7 @@ class Problem:
             return []
         out = []
         for g in self._groups:
-            ratios = [np.asarray(r) for r in Chamber.log_ratios(g.drive, g.drive.displacement)]
+            ratios = [np.asarray(r) for r in Chamber.log_ratios(g.drive)]
             for c, measured in enumerate(g.pressure):
                 if measured is None:
                     continue
@@ -661,19 +661,23 @@ def _pad_drive(drive: Drive, n: int) -> Drive:
         measured_force=(None if drive.measured_force is None
                         else jnp.asarray(_pad(drive.measured_force, n))),
         runs=(None if drive.runs is None
-              else pad_runs(drive.runs, n, int(drive.runs.before.shape[0]))))
+              else pad_runs(drive.runs, n, int(drive.runs.before.shape[0]))),
+        log_volume_ratios=(None if drive.log_volume_ratios is None
+                           else tuple(jnp.asarray(_pad(r, n)) for r in drive.log_volume_ratios)))
 
 
 def _same_closed_forms(drives: list[Drive]) -> list[Drive]:
     """Drives of one stack (one length) with one structure for the closed forms (a stack is
     one ``vmap``-ed evaluation): runs of one count, or none when one of them has none; the
-    widest chamber span, or none when one of them has none."""
+    widest chamber span, or none (nor log volume ratios) when one of them has none."""
     spans = [d.log_volume_span for d in drives]
     span = None if None in spans else max(spans)
     count = (None if any(d.runs is None for d in drives)
              else max(int(d.runs.before.shape[0]) for d in drives))
     return [dataclasses.replace(d, runs=None if count is None else pad_runs(d.runs, len(d), count),
-                                log_volume_span=span) for d in drives]
+                                log_volume_span=span,
+                                log_volume_ratios=None if span is None else d.log_volume_ratios)
+            for d in drives]
 
 
 def _same_structure(drives: list[Drive]) -> list[Drive]:

@@ -276,6 +276,56 @@ def test_stacked_drives_share_the_widest_span():
     assert drive.log_volume_span is None and spans == [None, None]
 
 
+def test_drive_log_volume_ratios_follow_its_displacement(paper_rig):
+    """A drive's cached log volume ratios are the chamber's logs of its displacement, padded
+    with it; a moved drive drops them and the chamber follows the new displacement."""
+    from fitstiff.problem import _pad_drive
+    from fitstiff.terms.chamber import Chamber
+
+    t, x = triangle([1e-3, 2e-3])
+    drive = make_drive(displacement=x, time=t, rig=paper_rig, needs_chamber=True)
+    assert drive.log_volume_ratios is not None
+    fresh = Chamber.log_ratios(drive, jnp.asarray(x) + 0.0)       # not the drive's array
+    for cached, computed in zip(drive.log_volume_ratios, fresh):
+        np.testing.assert_allclose(np.asarray(cached), np.asarray(computed), rtol=1e-14,
+                                   atol=1e-18)
+        assert float(jnp.max(jnp.abs(cached))) <= drive.log_volume_span
+    padded = _pad_drive(drive, len(drive) + 50)
+    for cached, computed in zip(padded.log_volume_ratios,
+                                Chamber.log_ratios(padded, padded.displacement + 0.0)):
+        np.testing.assert_allclose(np.asarray(cached), np.asarray(computed), rtol=1e-14,
+                                   atol=1e-18)
+    model = build_model("chamber", drives=[drive])
+    bumped = np.asarray(x) * 1.001                  # the same runs, a different displacement
+    moved = drive.moved(jnp.asarray(bumped))
+    assert moved.log_volume_ratios is None
+    np.testing.assert_allclose(np.asarray(model.run(moved).pressure_a),
+                               np.asarray(model.run(drive.with_displacement(bumped)).pressure_a),
+                               rtol=1e-14)
+    assert not np.allclose(np.asarray(model.run(moved).pressure_a),
+                           np.asarray(model.run(drive).pressure_a), rtol=1e-9)
+
+
+def test_turning_point_columns_see_the_chamber_through_the_moved_drive():
+    """The turning points' columns (a Jacobian in the displacement) are the same with the
+    drive's cached ratios as without them: the cache never stands for a moved displacement."""
+    from fitstiff._testing.speed import make_log
+    from fitstiff.likelihood import Layout, TurningPoints
+    from fitstiff.problem import Problem
+
+    problem = Problem([make_log().slice(0, 1500)], "chamber+dahl")
+    theta = jnp.asarray(problem.pack(problem.model))
+    layout = Layout.from_problem(problem)
+    cached = TurningPoints.at(problem, theta, layout).columns
+    object.__setattr__(problem, "_groups", [
+        dataclasses.replace(g, drive=dataclasses.replace(g.drive, log_volume_ratios=None))
+        for g in problem._groups])
+    object.__setattr__(problem, "_compiled", {})
+    computed = TurningPoints.at(problem, theta, layout).columns
+    assert cached.shape == computed.shape and cached.shape[1] > 0
+    np.testing.assert_allclose(cached, computed, rtol=1e-12, atol=1e-12 * np.abs(computed).max())
+
+
 def test_the_benchmark_log_takes_the_series():
     """The chamber of a pre-sliding log's problem (denoised drive) evaluates its powers as a
     series (``benchmarks/posterior_speed.py``)."""
