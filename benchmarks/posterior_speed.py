@@ -5,7 +5,8 @@ realistic noise), fitted by least squares, then:
 
 - **fitstiff**: :class:`fitstiff.posterior.LogPosterior` (default AR(1) noise model, default
   priors, transforms' log-Jacobians) evaluated on 32 walkers at once: one compiled, ``vmap``-ed
-  call.
+  call, the two pressure series in closed form (:mod:`fitstiff.closed_series`: quadratic
+  forms in the coefficients of their polynomials in ``n``), the force series from residuals.
   Each round times two blocks of ``--calls`` consecutive calls (per call: their mean) after
   the reference's block: the first block (``speedup_cold``) starts right after the
   reference's ~50 ms of single-threaded Python, the second (``speedup``) follows it, warm, as a

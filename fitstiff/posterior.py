@@ -709,6 +709,11 @@ class LogPosterior:
         priors: the priors.
         batch: rows per compiled call.
         coordinates: the sampled coordinates (default: all of ``theta``).
+        centre: the ``theta`` ``noise`` was prepared at (the least-squares optimum). Given,
+            the pressure series of a closed-form chamber are evaluated as polynomials in
+            ``n`` around it (:class:`~fitstiff.closed_series.ClosedFormLikelihood`, when the
+            model and the noise model allow): the same values to rounding, only the force
+            residuals computed per row. None: every series from the residuals.
     """
 
     def __init__(self, problem: Problem, noise: NoiseModel, priors: Priors, *, batch: int,
