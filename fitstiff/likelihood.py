@@ -478,14 +478,15 @@ class _Quadratic(NoiseModel):
         """``(K, K)`` ``G``: the sum of squares of ``series`` (its columns integrated out) is
         ``c' G c`` when its residuals are ``columns @ c`` (``columns``: ``(length, K)`` over
         the series' span)."""
-        span = layout.series[series].span
-        full = np.zeros((layout.size, columns.shape[1]))
-        full[span] = columns
-        whiten = jax.vmap(lambda c: self.whiten(c, layout), in_axes=1, out_axes=1)
-        v = np.asarray(whiten(jnp.asarray(full)))[span]
+        entry = layout.series[series]
+        sub = Layout.from_series([entry._replace(span=slice(0, columns.shape[0]))],
+                                 [layout.labels[series]])
+        alone = self.restricted([series], layout, sub)
+        whiten = jax.jit(jax.vmap(lambda c: alone.whiten(c, sub), in_axes=1, out_axes=1))
+        v = np.asarray(whiten(jnp.asarray(columns)))
         g = v.T @ v
-        if self.marginal is not None:
-            g = g - self.marginal.reduction(series, v)
+        if alone.marginal is not None:
+            g = g - alone.marginal.reduction(0, v)
         return 0.5 * (g + g.T)
 
     def log_likelihood(self, residuals, layout: Layout):
