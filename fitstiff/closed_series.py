@@ -107,8 +107,9 @@ class PressureExpansion:
         centre_p0 = starts[logs, chambers]
         columns = []
         for (_, _, ratio, measured, weight), p0 in zip(forms, centre_p0):
-            base = np.exp(n_c * ratio) * weight
-            cols = [(p0 * np.exp(n_c * ratio) - measured) * weight, base]
+            power_c = np.exp(n_c * ratio)
+            base = power_c * weight
+            cols = [(p0 * power_c - measured) * weight, base]
             power = base
             for k in range(1, terms + 1):
                 power = power * ratio / k

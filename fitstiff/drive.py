@@ -30,7 +30,8 @@ from fitstiff.errors import InputError
 from fitstiff.log import Log, Rig
 from fitstiff.runs import Runs, find_runs
 
-__all__ = ["Drive", "make_drive", "drive_from_log", "log_volume_span", "CHAMBER_MODES"]
+__all__ = ["Drive", "make_drive", "drive_from_log", "chamber_log_ratios", "log_volume_span",
+           "CHAMBER_MODES"]
 
 CHAMBER_MODES = ("measured", "vented", "closed")
 
@@ -196,17 +197,20 @@ def log_volume_span(x: np.ndarray, l_a0: float, l_b0: float, modes) -> float | N
     return 2.0 ** math.ceil(math.log2(max(span, 2.0 ** -40)))
 
 
+def chamber_log_ratios(x, l_a0, l_b0):
+    """``log(V(x[0]) / V(x))`` of chambers A and B (effective lengths ``l_a0 + x`` and
+    ``l_b0 - x``) over the last axis of ``x``: one drive's samples, or a stack's (leading log
+    axis, one length per log). Traced or concrete."""
+    x0 = x[..., :1]
+    l_a, l_b = (jnp.asarray(length)[..., None] for length in (l_a0, l_b0))
+    return jnp.log((l_a + x0) / (l_a + x)), jnp.log((l_b - x0) / (l_b - x))
+
+
 def log_volume_ratios(x: np.ndarray, l_a0: float, l_b0: float,
                       span: float | None) -> tuple[jnp.ndarray, jnp.ndarray] | None:
-    """``log(V(x[0]) / V(x))`` of chambers A and B (effective lengths ``l_a0 + x`` and
-    ``l_b0 - x``) over the samples of ``x``, when the drive has a chamber ``span``
+    """:func:`chamber_log_ratios` of ``x``, when the drive has a chamber ``span``
     (:func:`log_volume_span`; None: None)."""
-    if span is None:
-        return None
-    x = np.asarray(x, dtype=float)
-    with np.errstate(all="ignore"):     # a chamber that is not closed may have no length
-        return (jnp.asarray(np.log((l_a0 + x[0]) / (l_a0 + x))),
-                jnp.asarray(np.log((l_b0 - x[0]) / (l_b0 - x))))
+    return None if span is None else chamber_log_ratios(jnp.asarray(x, dtype=float), l_a0, l_b0)
 
 
 def _check_chamber_lengths(x: np.ndarray, l_a0: float, l_b0: float, modes, *, rig: Rig,

@@ -336,20 +336,6 @@ class _Marginal:
                          np.asarray([position[int(s)] for s in self.series[cols]], dtype=int),
                          self.flat[np.asarray(keep, dtype=int)], linear)
 
-    def reduction(self, series: int, whitened: np.ndarray) -> np.ndarray:
-        """``(A_s'V)' M_s (A_s'V)`` for whitened columns ``V`` of series ``series`` (rows: its
-        span): what integrating its columns out takes from the Gram matrix ``V'V``."""
-        cols = np.flatnonzero(self.series == series)
-        if not cols.size:
-            return np.zeros((whitened.shape[1],) * 2)
-        start = 0
-        for _, block in self.blocks:
-            if self.series[self.order[start]] == series:
-                break
-            start += block.shape[1]
-        av = block.T @ whitened                 # block columns are ``cols`` in order
-        return av.T @ self.inverse[np.ix_(cols, cols)] @ av
-
     def project(self, e):
         """``A'e`` ``(m + k,)``."""
         parts = jnp.concatenate([e[span] @ jnp.asarray(block) for span, block in self.blocks])
@@ -485,8 +471,10 @@ class _Quadratic(NoiseModel):
         whiten = jax.jit(jax.vmap(lambda c: alone.whiten(c, sub), in_axes=1, out_axes=1))
         v = np.asarray(whiten(jnp.asarray(columns)))
         g = v.T @ v
-        if alone.marginal is not None:
-            g = g - alone.marginal.reduction(0, v)
+        m = alone.marginal
+        if m is not None and m.blocks:         # its integrated columns: one block
+            av = m.blocks[0][1].T @ v
+            g = g - av.T @ m.inverse @ av
         return 0.5 * (g + g.T)
 
     def log_likelihood(self, residuals, layout: Layout):

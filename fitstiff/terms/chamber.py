@@ -21,6 +21,7 @@ import equinox as eqx
 
 from fitstiff import gas_spring
 from fitstiff._jax import jax, jnp
+from fitstiff.drive import chamber_log_ratios
 from fitstiff.params import Param
 from fitstiff.terms.base import ForceSource, Modulation, Step
 
@@ -192,9 +193,7 @@ class Chamber(ForceSource):
             if drive.log_volume_ratios is not None:
                 return drive.log_volume_ratios
             x = drive.displacement
-        x0 = x[..., :1]
-        l_a, l_b = (jnp.asarray(length)[..., None] for length in (drive.l_a0, drive.l_b0))
-        return jnp.log((l_a + x0) / (l_a + x)), jnp.log((l_b - x0) / (l_b - x))
+        return chamber_log_ratios(x, drive.l_a0, drive.l_b0)
 
     def force(self, state, s: Step, drive):
         """Chamber force (N, + toward the B cap) of a state at one step (or all samples)."""
