@@ -21,7 +21,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import resource
+import os
 import subprocess
 import sys
 import tempfile
@@ -59,18 +59,23 @@ def write_logs(folder: Path, *, scale: float = 1.0) -> list[Path]:
 
 
 def run_cli(args: list[str]) -> dict[str, object]:
-    """``fitstiff ARGS`` in a fresh process: wall time, the child's peak RSS."""
+    """``fitstiff ARGS`` in a fresh process: wall time, the child's own peak RSS (from
+    ``wait4``: ``RUSAGE_CHILDREN`` holds the largest of every child the caller has waited
+    for, e.g. a test process's earlier ones)."""
     start = time.perf_counter()
-    before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
-    done = subprocess.run([sys.executable, "-m", "fitstiff", *args], capture_output=True,
-                          text=True)
-    wall = time.perf_counter() - start
-    peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
-    if done.returncode != 0:
-        raise SystemExit(f"fitstiff {' '.join(args)} failed ({done.returncode}):\n"
-                         f"{done.stderr[-3000:]}")
-    return {"wall_s": wall, "peak_rss_mb": peak / 1024 if peak > before else None,
-            "stdout": done.stdout}
+    with tempfile.TemporaryFile("w+") as out, tempfile.TemporaryFile("w+") as err:
+        proc = subprocess.Popen([sys.executable, "-m", "fitstiff", *args], stdout=out,
+                                stderr=err, text=True)
+        _, status, usage = os.wait4(proc.pid, 0)
+        proc.returncode = os.waitstatus_to_exitcode(status)
+        wall = time.perf_counter() - start
+        out.seek(0)
+        err.seek(0)
+        stdout, stderr = out.read(), err.read()
+    if proc.returncode != 0:
+        raise SystemExit(f"fitstiff {' '.join(args)} failed ({proc.returncode}):\n"
+                         f"{stderr[-3000:]}")
+    return {"wall_s": wall, "peak_rss_mb": usage.ru_maxrss / 1024, "stdout": stdout}
 
 
 def summary(out: Path) -> dict[str, object]:

@@ -18,6 +18,9 @@ random state, so an interrupted and resumed run gives the same chain as an unint
 ==================================  ===========================================================
 ``chain/chain``                     ``(steps, walkers, sampled coordinates)`` walker positions
 ``chain/log_prob``                  ``(steps, walkers)`` their log-posterior
+``chain/blobs``                     ``(steps, walkers, k + S)`` with the force offsets
+                                    integrated out: what their conditional draws need of
+                                    each position (:attr:`~fitstiff.posterior.LogPosterior.blobs`)
 ``chain/accepted``                  ``(walkers,)`` accepted proposals per walker
 ``chain/steps``                     the number of stored steps (written last: a batch counts
                                     once it is whole)
@@ -94,9 +97,11 @@ class ChainBackend(emcee.backends.Backend):
         self.path = Path(path)
         self.read_only = read_only
         self.dtype = np.float64
-        self._pending: list[tuple[np.ndarray, np.ndarray, np.ndarray, tuple]] = []
+        self._pending: list[tuple[np.ndarray, np.ndarray, np.ndarray, tuple,
+                                  np.ndarray | None]] = []
         self._stored: int | None = None          # stored steps, once read
         self._shape: tuple[int, int] | None = None
+        self._blobs: bool | None = None          # whether the chain has blobs, once read
         self._flushed_at = time.monotonic()
 
     @property
@@ -125,7 +130,7 @@ class ChainBackend(emcee.backends.Backend):
             g.create_dataset("steps", data=0)
             g.create_dataset("rng_keys", (624,), dtype=np.uint32)
             g.create_dataset("rng_rest", (3,), dtype=np.float64)
-        self._stored, self._shape = 0, (int(nwalkers), int(ndim))
+        self._stored, self._shape, self._blobs = 0, (int(nwalkers), int(ndim)), False
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -162,30 +167,57 @@ class ChainBackend(emcee.backends.Backend):
             return ("MT19937", g["rng_keys"][...], int(pos), int(has_gauss), float(cached))
 
     def has_blobs(self) -> bool:
-        return False
+        """Whether the steps carry blobs (a ``(walkers, width)`` float array per step)."""
+        if self._blobs is None:
+            try:
+                with h5py.File(self.path, "r") as f:
+                    self._blobs = "blobs" in f[self.GROUP]
+            except (OSError, KeyError):
+                self._blobs = False
+        return self._blobs
 
     def grow(self, ngrow: int, blobs) -> None:
-        """Nothing to set aside (the datasets grow as the steps are written); fitstiff's
-        log-posterior has no blobs."""
-        if blobs is not None:
-            raise ValueError("fitstiff's chain file stores no blobs")
+        """Nothing to set aside (the datasets grow as the steps are written); with
+        ``blobs`` on a new chain, their dataset is made (its width from them)."""
+        if blobs is None:
+            if self.has_blobs():
+                raise ValueError(f"{self.path}: the chain has blobs and the new steps none")
+            return
+        blobs = np.asarray(blobs, dtype=float)
+        if blobs.ndim != 2:
+            raise ValueError(f"blobs of shape {blobs.shape}: fitstiff's chain file stores a "
+                             "(walkers, width) float array per step")
+        if self.has_blobs():
+            return
+        if self.iteration:
+            raise ValueError(f"{self.path}: the chain's {self.iteration} steps have no blobs")
+        self._writable()
+        with h5py.File(self.path, "a") as f:
+            f[self.GROUP].create_dataset("blobs", (0,) + blobs.shape,
+                                         maxshape=(None,) + blobs.shape, dtype=self.dtype,
+                                         chunks=True)
+        self._blobs = True
 
     def save_step(self, state: emcee.State, accepted: np.ndarray) -> None:
         self._writable()
         self._pending.append((np.array(state.coords), np.array(state.log_prob),
-                              np.array(accepted), state.random_state))
+                              np.array(accepted), state.random_state,
+                              None if state.blobs is None else np.array(state.blobs)))
         if time.monotonic() - self._flushed_at >= self.flush_seconds:
             self.flush()
 
     def flush(self) -> None:
         """Write the pending steps."""
         if self._pending:
-            coords, log_prob, accepted, states = zip(*self._pending)
+            coords, log_prob, accepted, states, blobs = zip(*self._pending)
             _, keys, pos, has_gauss, cached = states[-1][:5]
+            series = [("chain", coords), ("log_prob", log_prob)]
+            if self.has_blobs():
+                series.append(("blobs", blobs))
             with h5py.File(self.path, "a") as f:
                 g = f[self.GROUP]
                 start, k = int(g["steps"][()]), len(coords)
-                for name, values in (("chain", coords), ("log_prob", log_prob)):
+                for name, values in series:
                     g[name].resize(start + k, axis=0)
                     g[name][start:] = np.stack(values)
                 g["accepted"][...] = g["accepted"][...] + np.sum(accepted, axis=0)
@@ -196,12 +228,13 @@ class ChainBackend(emcee.backends.Backend):
         self._flushed_at = time.monotonic()
 
     def get_value(self, name: str, flat: bool = False, thin: int = 1, discard: int = 0):
-        """``chain`` or ``log_prob`` (emcee's :meth:`~emcee.backends.Backend.get_chain`,
-        :meth:`~emcee.backends.Backend.get_log_prob`); ``blobs``: None."""
+        """``chain``, ``log_prob`` or ``blobs`` (emcee's
+        :meth:`~emcee.backends.Backend.get_chain`, :meth:`~emcee.backends.Backend.get_log_prob`,
+        :meth:`~emcee.backends.Backend.get_blobs`; ``blobs``: None without)."""
         self.flush()
         if self.iteration <= 0:
             raise AttributeError("the chain has no step yet")
-        if name == "blobs":
+        if name == "blobs" and not self.has_blobs():
             return None
         with h5py.File(self.path, "r") as f:
             v = f[self.GROUP][name][discard + thin - 1:self.iteration:thin]
@@ -308,6 +341,11 @@ class ChainStore:
                                  f"({_short(stored.get(key))} vs {_short(mine[key])} now)",
                                  "resume with the original logs and options, or drop --resume "
                                  "to start over")
+        if mine.get("integrated") and not self.backend.has_blobs():
+            raise InputError(where, "--resume", "holds a chain written by an older fitstiff "
+                             "without the statistics of the integrated force offsets (chain/"
+                             "blobs), which this version needs to draw them",
+                             "run without --resume to start over")
         return noise_from_dict(json.loads(attrs["noise"])), np.asarray(attrs["theta_start"])
 
 

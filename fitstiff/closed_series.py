@@ -178,8 +178,11 @@ class ClosedFormLikelihood:
             raise AssertionError("series neither closed nor computed")   # pragma: no cover
         series = problem.residual_series(channels)
         rest_layout = Layout.from_series(series, [layout.labels[i] for i in rest])
-        return cls(noise, layout, expansion, grams, channels, rest, rest_layout,
-                   noise.restricted(rest, layout, rest_layout))
+        rest_noise = noise.restricted(rest, layout, rest_layout)
+        if (noise.marginal is not None
+                and rest_noise.marginal.linear != noise.marginal.linear):   # pragma: no cover
+            raise AssertionError("a linear nuisance acts on a closed series")
+        return cls(noise, layout, expansion, grams, channels, rest, rest_layout, rest_noise)
 
     def log_likelihood(self, problem: Problem, theta):
         """The log-likelihood at ``theta`` (JAX; one row)."""
@@ -188,10 +191,17 @@ class ClosedFormLikelihood:
 
     def squares_likelihood(self, problem: Problem, residuals, theta):
         """The log-likelihood from the residuals of :attr:`channels` at ``theta``."""
-        q_rest = self.rest_noise._squares(residuals, self.rest_layout)
+        return self.solved_likelihood(problem, residuals, theta)[0]
+
+    def solved_likelihood(self, problem: Problem, residuals, theta):
+        """``(log-likelihood, statistics)`` from the residuals of :attr:`channels` at
+        ``theta``, as :meth:`~fitstiff.likelihood._Quadratic.solved_likelihood` of every
+        series (the linear nuisances act on the force series, computed from residuals)."""
+        z, q_rest = self.rest_noise._solved(residuals, self.rest_layout)
         c = self.expansion.coefficients(problem, theta)
         q_closed = jnp.einsum("pi,pij,pj->p", c, jnp.asarray(self.grams), c)
         q = (jnp.zeros(len(self.layout.series), q_rest.dtype)
              .at[self.rest].set(q_rest).at[self.expansion.series].set(q_closed))
-        return self.noise.squares_likelihood(q, self.layout)
+        return (self.noise.squares_likelihood(q, self.layout),
+                self.rest_noise.linear_statistics(z, q))
 

@@ -493,27 +493,41 @@ class _Quadratic(NoiseModel):
         flat = 0 if self.marginal is None else self.marginal.flat
         return np.asarray(layout.counts - flat)
 
-    def linear_draws(self, residuals, layout: Layout, normal, chi2):
-        """A draw of the integrated linear nuisances given the other entries, as corrections
-        ``(k,)`` to the values ``residuals`` were computed at. Their conditional posterior is
-        normal around the least-squares correction with covariance ``s**2 (P + A'A)^-1``; the
-        scale ``s`` of each series is drawn from its conditional ``q / chi2``.
+    def solved_likelihood(self, residuals, layout: Layout):
+        """``(log-likelihood, statistics)`` of ``residuals``: the log-likelihood and the
+        :meth:`linear_statistics` of the integrated linear nuisances (JAX; one row)."""
+        z, q = self._solved(residuals, layout)
+        return self.squares_likelihood(q, layout), self.linear_statistics(z, q)
+
+    def linear_statistics(self, z, q):
+        """``[c, q]`` ``(k + S,)``: what :meth:`linear_draws` needs of one row, from its
+        :meth:`_solved` ``(z, q)``: the integrated linear nuisances' most probable
+        corrections ``c`` (the last ``k`` entries of ``z``) and the per-series sums of
+        squares ``q``."""
+        k = 0 if self.marginal is None else self.marginal.linear
+        return q if not k else jnp.concatenate([z[z.shape[0] - k:], q])
+
+    def linear_draws(self, statistics: np.ndarray, normal: np.ndarray,
+                     chi2: np.ndarray) -> np.ndarray:
+        """Draws of the integrated linear nuisances given the other entries, as corrections
+        ``(rows, k)`` to the values the :meth:`linear_statistics` were computed at. Their
+        conditional posterior is normal around the least-squares correction ``c`` with
+        covariance ``s**2 (P + A'A)^-1``; the scale ``s`` of each series is drawn from its
+        conditional ``q / chi2`` (NumPy, rows at once).
 
         Args:
-            residuals: the residual vector (nuisances at their stored values).
-            layout: the series.
-            normal: ``(m + k,)`` standard normal deviates.
-            chi2: ``(S,)`` chi-square deviates with :meth:`dof` degrees of freedom.
+            statistics: ``(rows, k + S)`` :meth:`linear_statistics` of each row.
+            normal: ``(rows, m + k)`` standard normal deviates.
+            chi2: ``(rows, S)`` chi-square deviates with :meth:`dof` degrees of freedom.
         """
         m = self.marginal
-        z, q = self._solved(residuals, layout)
-        s = (jnp.sqrt(q / chi2) if self.sigma is None
-             else jnp.full(len(layout.series), self.sigma))
-        root = jnp.asarray(np.linalg.cholesky(0.5 * (m.inverse + m.inverse.T)))
+        k = m.linear
+        c, q = statistics[:, :k], statistics[:, k:]
+        s = np.sqrt(q / chi2) if self.sigma is None else np.full(q.shape, self.sigma)
         # the inverse is block-diagonal by series (no column spans two), so scaling the
         # deviates by their series' s first scales each block's draw by its own s
-        draw = z + root @ (normal * s[m.series])
-        return draw[m.series.size - m.linear:]
+        root = np.linalg.cholesky(0.5 * (m.inverse + m.inverse.T))[m.series.size - k:]
+        return c + (normal * s[:, m.series]) @ root.T
 
     def _check_sigma(self) -> None:
         if self.sigma is not None and not (math.isfinite(self.sigma) and self.sigma > 0):

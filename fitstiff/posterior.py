@@ -13,7 +13,9 @@ force offset and initial friction state), the same coordinates as least squares,
 force offsets: they enter the residuals linearly and, under their flat priors, are integrated
 out exactly by the ``gaussian`` and ``ar1`` likelihoods (:mod:`fitstiff.likelihood`), then
 drawn from their conditional posterior for every kept step (``integrate_offsets=False``
-samples them). The log-posterior is
+samples them). What those draws need of a step (the offsets' most probable corrections and
+the per-series sums of squares) comes out of its log-posterior evaluation as emcee blobs,
+so no model runs again after sampling. The log-posterior is
 
     log p(theta | data) = log L(residuals(theta)) + sum_i log prior_i(x_i(theta))
                           + log |d x / d theta|
@@ -81,7 +83,7 @@ import emcee
 import numpy as np
 
 from fitstiff import likelihood
-from fitstiff._jax import computed_apart, jax, jnp
+from fitstiff._jax import computed_apart, jax, jnp, release_compiled
 from fitstiff.chain import CHAIN, KEPT, ChainStore, fixed_values, signature
 from fitstiff.closed_series import ClosedFormLikelihood
 from fitstiff.convergence import Check, run_chunks
@@ -136,7 +138,6 @@ _BALL_FLOOR = 1e-4          # ... and at least this in theta units (undetermined
 _BURN_IN_TAUS = 5.0
 _DISAGREEMENT = 4.0         # posterior median vs least squares, in combined standard deviations
 _DERIVED_BATCH = 256
-_RESIDUAL_BATCH = 32        # rows per call of functions that run the model over whole logs
 _PREDICTIVE_BATCH = 25
 _PREDICTIVE_POINTS = 2000   # at most this many samples per log in the predictive file
 _QUANTILES = (("q05", 5.0), ("q50", 50.0), ("q95", 95.0))
@@ -487,7 +488,8 @@ def sample_posterior(logs_or_fit: Sequence[Log] | FitResult, model: Model | str 
                      check_every: int = 500, thin: int | None = None, seed: int = 0,
                      backend: str | os.PathLike | None = None, resume: bool = False,
                      progress: bool | None = None, draws: int = 200,
-                     moves: str = DEFAULT_MOVES, integrate_offsets: bool = True) -> Posterior:
+                     moves: str = DEFAULT_MOVES, integrate_offsets: bool = True,
+                     release: bool = True) -> Posterior:
     """Sample the posterior of ``model`` given ``logs`` with emcee.
 
     Args:
@@ -518,6 +520,11 @@ def sample_posterior(logs_or_fit: Sequence[Log] | FitResult, model: Model | str 
             sampling them (``gaussian`` and ``ar1`` noise, flat offset priors; otherwise they
             are sampled). Their samples are then exact draws from their conditional
             posterior given each sampled step.
+        release: free JAX's compiled functions between the phases (fit, noise settings,
+            sampling, summaries; :func:`fitstiff._jax.release_compiled`): each phase's
+            compilations are needed in it alone, and kept they add up (the default 4-log
+            posterior: about 1 000 MB peak resident kept, 610 MB released). Other jitted
+            functions of the process are traced again on their next call.
 
     Returns:
         A :class:`Posterior`; ``diagnostics.converged`` is False (with the reason) when the
@@ -553,6 +560,8 @@ def sample_posterior(logs_or_fit: Sequence[Log] | FitResult, model: Model | str 
     else:
         if fit_result is None:
             fit_result = fit_problem(problem, **_solver_options(fit_options or {}))
+            if release:
+                release_compiled()
         if not fit_result.converged:
             warnings.append(f"the least-squares start did not converge "
                             f"({fit_result.message}); the burn-in may be long")
@@ -564,6 +573,8 @@ def sample_posterior(logs_or_fit: Sequence[Log] | FitResult, model: Model | str 
         theta_start = np.asarray(fit_result.theta)
     coordinates = _Coordinates.of(problem, theta_start, integrated, layout)
     noise, turning = _prepared(problem, noise, theta_start, layout, linear=coordinates.linear)
+    if release:
+        release_compiled()
     if turning.columns.shape[1] and getattr(noise, "marginal", None) is None:
         warnings.append(f"the {noise.name} noise model leaves the displacement errors at the "
                         "turning points out: intervals may be too narrow")
@@ -575,15 +586,19 @@ def sample_posterior(logs_or_fit: Sequence[Log] | FitResult, model: Model | str 
         emcee_backend.reset(walkers, ndim)
         if store:
             store.write_settings(stored_as, settings=noise, theta_start=theta_start)
-    sampler = emcee.EnsembleSampler(walkers, ndim, log_prob, vectorize=True,
-                                    backend=emcee_backend, moves=MOVES[moves]())
+    sampler = emcee.EnsembleSampler(walkers, ndim,
+                                    log_prob.rows if log_prob.blobs else log_prob,
+                                    vectorize=True, backend=emcee_backend,
+                                    moves=MOVES[moves]())
     if resume:
         state = sampler.get_last_sample()
     else:
-        coords, lp0 = _start(fit_result, problem, log_prob, walkers,
-                             np.random.default_rng(seeds[0]), prior_set)
-        state = emcee.State(coords, log_prob=lp0, random_state=np.random.RandomState(
-            np.random.MT19937(seeds[1])).get_state())
+        coords, rows = _start(fit_result, problem, log_prob, walkers,
+                              np.random.default_rng(seeds[0]), prior_set)
+        state = emcee.State(coords, log_prob=rows[:, 0],
+                            blobs=rows[:, 1:] if log_prob.blobs else None,
+                            random_state=np.random.RandomState(
+                                np.random.MT19937(seeds[1])).get_state())
     try:
         check = run_chunks(sampler, state, names=coordinates.names(problem), steps=steps,
                             tau_multiple=tau_multiple, check_every=check_every,
@@ -591,6 +606,8 @@ def sample_posterior(logs_or_fit: Sequence[Log] | FitResult, model: Model | str 
     finally:
         if store:
             store.backend.flush()      # also when interrupted: no sampled step is lost
+    if release:
+        release_compiled()
     return _collect(problem, sampler, check, noise=noise, layout=layout, priors=prior_set,
                     coordinates=coordinates, fit=fit_result, thin=thin, draws=draws,
                     tau_multiple=tau_multiple, moves=moves,
@@ -697,11 +714,12 @@ class LogPosterior:
     ``vectorize=True``): ``theta``, or with ``coordinates`` its sampled entries (the others
     integrated out by the prepared ``noise``).
 
-    ``one(coords)`` is the JAX function of one row; calls compute the same as two
-    ``vmap``-ed, compiled functions (the residuals, then likelihood and priors) for ``batch``
-    rows (half the ensemble: emcee's red-blue moves), padding the last chunk, so they
-    compile once. Compilations are shared by every instance for the same problem, noise
-    model, priors, batch and coordinates.
+    ``one(coords)`` is the JAX function of one row's log-posterior; calls compute the same as two ``vmap``-ed, compiled functions
+    (the residuals, then likelihood and priors) for ``batch`` rows (half the ensemble:
+    emcee's red-blue moves), padding the last chunk, so they compile once. Compilations are
+    shared by every instance for the same problem, noise model, priors, batch and
+    coordinates. A call returns the log-posteriors; :meth:`rows` also the statistics (emcee's
+    blobs).
 
     Args:
         problem: the problem sampled.
@@ -714,6 +732,12 @@ class LogPosterior:
             ``n`` around it (:class:`~fitstiff.closed_series.ClosedFormLikelihood`, when the
             model and the noise model allow): the same values to rounding, only the force
             residuals computed per row. None: every series from the residuals.
+
+    Attributes:
+        blobs: the number of statistics per row after its log-posterior: with linear
+            nuisances integrated out (``coordinates.linear``), ``k + S``, their
+            :meth:`~fitstiff.likelihood._Quadratic.linear_statistics` (what their
+            conditional draws need); else 0.
     """
 
     def __init__(self, problem: Problem, noise: NoiseModel, priors: Priors, *, batch: int,
@@ -723,18 +747,25 @@ class LogPosterior:
         self.coordinates = coordinates
         self.closed = (None if centre is None
                        else ClosedFormLikelihood.of(problem, noise, centre, layout))
+        self.blobs = (0 if coordinates is None or coordinates.linear is None
+                      else coordinates.linear.index.size + len(layout.series))
 
         options = dict(noise=noise, priors=priors, layout=layout, coordinates=coordinates,
                        closed=self.closed)
 
         def one(coords):
             return _given(problem, _row_residuals(problem, coords, **options), coords,
-                          **options)
+                          **options)[0]
 
         self.one = one
         self._fn = problem.compiled(_log_posterior_rows, **options)
 
     def __call__(self, coords: np.ndarray) -> np.ndarray:
+        return self.rows(coords)[:, 0]
+
+    def rows(self, coords: np.ndarray) -> np.ndarray:
+        """``(rows, 1 + blobs)``: each row's log-posterior, then its :attr:`blobs`
+        statistics (emcee's ``log_prob_fn`` returning blobs)."""
         return _batched(self._fn, np.asarray(coords, dtype=float), batch=self.batch)
 
 
@@ -753,13 +784,19 @@ def _row_residuals(p: Problem, coords, *, coordinates: _Coordinates | None,
 def _given(p: Problem, residuals, coords, *, noise: NoiseModel, priors: Priors,
            layout: Layout, coordinates: _Coordinates | None,
            closed: ClosedFormLikelihood | None):
-    """The log-posterior of one row of sampled coordinates, given its
-    :func:`_row_residuals`."""
+    """``[log-posterior, statistics...]`` of one row of sampled coordinates, given its
+    :func:`_row_residuals` (the statistics: :attr:`LogPosterior.blobs`)."""
     theta = _full(coordinates, coords)
-    likelihood = (noise.log_likelihood(residuals, layout) if closed is None
-                  else closed.squares_likelihood(p, residuals, theta))
+    linear = coordinates is not None and coordinates.linear is not None
+    if closed is not None:
+        likelihood, statistics = closed.solved_likelihood(p, residuals, theta)
+    elif linear:
+        likelihood, statistics = noise.solved_likelihood(residuals, layout)
+    else:
+        likelihood = noise.log_likelihood(residuals, layout)
     lp = likelihood + priors.log_density(p.physical(theta)) + p.log_jacobian(theta)
-    return jnp.where(jnp.isnan(lp), -jnp.inf, lp)
+    lp = jnp.where(jnp.isnan(lp), -jnp.inf, lp)
+    return jnp.concatenate([lp[None], statistics]) if linear else lp[None]
 
 
 def _log_posterior_rows(p: Problem, rows, **options):
@@ -786,15 +823,6 @@ def _force_rows(p: Problem, rows):
         [pred.force.ravel() for pred in p.predictions(theta)]))(rows)
 
 
-def _linear_draw_rows(p: Problem, rows, *, noise: NoiseModel, layout: Layout, size: int,
-                      columns: int):
-    """Draws of the integrated entries given each row ``[theta, z, chi2]``."""
-    def draw(row):
-        theta, z, c = row[:size], row[size:size + columns], row[size + columns:]
-        return noise.linear_draws(p.residuals(theta), layout, z, c)
-    return jax.vmap(draw)(rows)
-
-
 def _batched(fn: Callable, rows: np.ndarray, *, batch: int) -> np.ndarray:
     """``fn`` (compiled for ``batch`` rows) over all ``rows``, padding the last chunk."""
     n = rows.shape[0]
@@ -809,7 +837,7 @@ def _batched(fn: Callable, rows: np.ndarray, *, batch: int) -> np.ndarray:
 def _start(fit: FitResult, problem: Problem, log_prob: LogPosterior, walkers: int,
            rng: np.random.Generator, priors: Priors) -> tuple[np.ndarray, np.ndarray]:
     """Walkers in a ball around the least-squares optimum (0.1 x its Laplace covariance),
-    in the sampled coordinates of ``log_prob``."""
+    in the sampled coordinates of ``log_prob``, and their :meth:`LogPosterior.rows`."""
     theta = np.asarray(fit.theta, dtype=float)
     sampled = (np.arange(theta.size) if log_prob.coordinates is None
                else log_prob.coordinates.sampled)
@@ -829,14 +857,14 @@ def _start(fit: FitResult, problem: Problem, log_prob: LogPosterior, walkers: in
     sd_floor = _BALL_FLOOR / _BALL
     theta = theta[sampled]
     coords = np.empty((walkers, theta.size))
-    lp = np.full(walkers, -np.inf)
+    rows = np.full((walkers, 1 + log_prob.blobs), -np.inf)
     for _ in range(100):
-        bad = ~np.isfinite(lp)
+        bad = ~np.isfinite(rows[:, 0])
         if not bad.any():
-            return coords, lp
+            return coords, rows
         z = rng.standard_normal((int(bad.sum()), theta.size))
         coords[bad] = theta + _BALL * (z @ root.T + sd_floor * rng.standard_normal(z.shape))
-        lp[bad] = log_prob(coords[bad])
+        rows[bad] = log_prob.rows(coords[bad])
     raise nonfinite_error(problem.logs, "the log-posterior around the least-squares optimum "
                           "(no place for the walkers)")
 
@@ -857,8 +885,9 @@ def _collect(problem: Problem, sampler: emcee.EnsembleSampler, check: Check, *,
     thin = thin or max(1, int(tau_max // 2))
     coords = sampler.get_chain(discard=discard, thin=thin)
     log_prob = sampler.get_log_prob(discard=discard, thin=thin)
-    flat = _full_thetas(problem, noise, layout, coordinates,
-                        coords.reshape(-1, coords.shape[-1]), rng)
+    blobs = sampler.get_blobs(discard=discard, thin=thin)
+    flat = _full_thetas(noise, layout, coordinates, coords.reshape(-1, coords.shape[-1]),
+                        None if blobs is None else blobs.reshape(-1, blobs.shape[-1]), rng)
     thetas = flat.reshape(coords.shape[:2] + flat.shape[-1:])
     physical = problem.compiled(_physical_rows)
     samples = _batched(physical, flat, batch=_DERIVED_BATCH).reshape(thetas.shape)
@@ -915,25 +944,21 @@ def _disagreements(fit: FitResult, derived: Mapping[str, np.ndarray],
     return out
 
 
-def _full_thetas(problem: Problem, noise: NoiseModel, layout: Layout,
-                 coordinates: _Coordinates, coords: np.ndarray,
+def _full_thetas(noise: NoiseModel, layout: Layout, coordinates: _Coordinates,
+                 coords: np.ndarray, blobs: np.ndarray | None,
                  rng: np.random.Generator) -> np.ndarray:
     """Full ``theta`` rows of sampled ``coords``: the integrated entries drawn from their
-    conditional posterior given each row (:meth:`~fitstiff.likelihood.AR1.linear_draws`)."""
+    conditional posterior given each row (:meth:`~fitstiff.likelihood._Quadratic.linear_draws`)
+    from the row's ``blobs`` (:attr:`LogPosterior.blobs`, stored by the sampler)."""
     full = np.repeat(coordinates.base[None], coords.shape[0], axis=0)
     full[:, coordinates.sampled] = coords
     linear = coordinates.linear
     if linear is None:
         return full
-    columns = noise.marginal.series.size
     dof = noise.dof(layout)
-    normal = rng.standard_normal((coords.shape[0], columns))
+    normal = rng.standard_normal((coords.shape[0], noise.marginal.series.size))
     chi2 = rng.chisquare(np.maximum(dof, 1), size=(coords.shape[0], dof.size))
-    fn = problem.compiled(_linear_draw_rows, noise=noise, layout=layout, size=full.shape[1],
-                          columns=columns)
-    corrections = _batched(fn, np.concatenate([full, normal, chi2], axis=1),
-                           batch=_RESIDUAL_BATCH)
-    full[:, linear.index] += corrections
+    full[:, linear.index] += noise.linear_draws(blobs, normal, chi2)
     return full
 
 

@@ -63,6 +63,13 @@ def _agree(closed, plain, coordinates, *, seed=0, walkers=8):
         rows = centre + scale * rng.standard_normal((walkers, centre.size))
         a, b = closed(rows), plain(rows)
         np.testing.assert_allclose(a, b, rtol=1e-12, atol=0)
+        # and so do the statistics the integrated offsets' draws take (emcee's blobs)
+        a, b = closed.rows(rows), plain.rows(rows)
+        assert a.shape == b.shape == (walkers, 1 + closed.blobs)
+        finite = np.isfinite(a[:, 0])
+        scale = np.max(np.abs(b[finite]), axis=0)
+        np.testing.assert_array_less(np.abs(a[finite] - b[finite]),
+                                     1e-12 * (np.abs(b[finite]) + scale) + 1e-300)
 
 
 @pytest.mark.parametrize("noise", [AR1(), Gaussian()], ids=["ar1", "gaussian"])
@@ -76,6 +83,8 @@ def test_closed_form_likelihood_equals_the_residuals_one(bench_log, noise, integ
     closed, plain, coordinates = _pair(problem, noise, np.asarray(fit.theta),
                                        integrate=integrate)
     assert len(problem._groups) == 1 and closed.closed.expansion.series.size == 4
+    # with the offsets integrated out: theirs and every series' sum of squares
+    assert closed.blobs == (2 + 6 if integrate else 0)
     _agree(closed, plain, coordinates)
 
 

@@ -99,10 +99,20 @@ def test_offsets_are_integrated_out_exactly_under_flat_priors():
     assert float(model.log_likelihood(r, layout)) == pytest.approx(-0.5 * (n - 1) * np.log(q),
                                                                    rel=1e-12)
     assert model.dof(layout).tolist() == [n - 1]
-    # the conditional draw with zero deviates (and chi2 = q) is the GLS offset correction
+    # the same value with the statistics the conditional draws need
+    ll, statistics = model.solved_likelihood(r, layout)
+    assert float(ll) == pytest.approx(-0.5 * (n - 1) * np.log(q), rel=1e-12)
+    assert float(statistics[1]) == pytest.approx(q, rel=1e-12)
+    # the conditional draw with zero deviates (and chi2 = q, so s = 1) is the GLS offset
+    # correction; unit deviates give the columns of the Cholesky root of its covariance
+    # 1 / (g'S^-1 g)
     best = -(g[:, 0] @ inv @ r) / (g[:, 0] @ inv @ g[:, 0])
-    draw = model.linear_draws(r, layout, np.zeros(3), np.array([q]))
-    assert float(draw[0]) == pytest.approx(best, rel=1e-9)
+    rows = np.repeat(np.asarray(statistics)[None], 4, axis=0)
+    deviates = np.vstack([np.zeros(3), np.eye(3)])
+    draws = model.linear_draws(rows, deviates, np.full((4, 1), q))[:, 0]
+    assert draws[0] == pytest.approx(best, rel=1e-9)
+    assert np.sum((draws[1:] - best) ** 2) == pytest.approx(1 / (g[:, 0] @ inv @ g[:, 0]),
+                                                            rel=1e-9)
     with pytest.raises(ValueError, match="cannot integrate"):
         StudentT(nu=4).prepared(r_hat, layout, linear=linear)
 
@@ -391,6 +401,40 @@ def test_chain_file_is_an_emcee_backend_and_older_files_still_read(tmp_path):
     with pytest.raises(RuntimeError, match="read-only"):
         reread.reset(8, 2)
 
+    # blobs (the statistics of the integrated offsets) round-trip with the chain
+    def with_blobs(x):
+        return np.column_stack([-0.5 * np.sum(x**2, axis=-1), x**2, np.sum(x, axis=-1)])
+
+    def blob_sampler(backend=None):
+        out = emcee.EnsembleSampler(8, 2, with_blobs, vectorize=True, backend=backend)
+        out.random_state = np.random.RandomState(1).get_state()
+        return out
+
+    memory = blob_sampler()
+    memory.run_mcmc(start, 40, progress=False)
+    blobbed = ChainBackend(tmp_path / "blobs.h5")
+    blobbed.flush_seconds = 0.0
+    blobbed.reset(8, 2)
+    blob_sampler(blobbed).run_mcmc(start, 25, progress=False)
+    again = ChainBackend(tmp_path / "blobs.h5")                 # a resumed run
+    blob_sampler(again).run_mcmc(None, 15, progress=False)
+    again.flush()
+    reread = ChainBackend(tmp_path / "blobs.h5", read_only=True)
+    assert reread.has_blobs() and reread.get_blobs().shape == (40, 8, 3)
+    np.testing.assert_array_equal(reread.get_chain(), memory.get_chain())
+    np.testing.assert_array_equal(reread.get_blobs(thin=4, discard=3),
+                                  memory.get_blobs(thin=4, discard=3))
+    with pytest.raises(ValueError, match="have no blobs"):       # steps without, then with
+        ChainBackend(tmp_path / "chain.h5").grow(2, np.zeros((8, 3)))
+    with pytest.raises(ValueError, match="the new steps none"):
+        ChainBackend(tmp_path / "blobs.h5").grow(2, None)
+    # a chain with integrated offsets but no blobs (an older fitstiff) is not continued
+    store = ChainStore(tmp_path / "chain.h5")
+    store.write_settings({"integrated": ["offset[a]"]}, settings=Gaussian(),
+                         theta_start=np.zeros(2))
+    with pytest.raises(InputError, match="without the statistics"):
+        store.resume({"integrated": ["offset[a]"]})
+
     older = tmp_path / "older.h5"
     emcee_file = emcee.backends.HDFBackend(str(older))
     emcee_file.reset(8, 2)
@@ -434,7 +478,7 @@ def test_default_posterior_benchmark_runs_small(tmp_path):
     d = result["default"]
     assert result["logs"] == 4 and 1500 < result["samples"] < 2000
     assert d["converged"] and d["moves"] == "de" and len(d["integrated"]) == 4
-    assert d["tau_max"] > 0 and d["wall_s"] > 0
+    assert d["tau_max"] > 0 and d["wall_s"] > 0 and d["peak_rss_mb"] > 0
 
 
 # -- the speed benchmark's reference ----------------------------------------------------------
