@@ -25,7 +25,7 @@ import math
 import numpy as np
 import equinox as eqx
 
-from fitstiff._jax import jnp
+from fitstiff._jax import jax, jnp
 from fitstiff.errors import InputError
 from fitstiff.log import Log, Rig
 from fitstiff.runs import Runs, find_runs
@@ -206,11 +206,17 @@ def chamber_log_ratios(x, l_a0, l_b0):
     return jnp.log((l_a + x0) / (l_a + x)), jnp.log((l_b - x0) / (l_b - x))
 
 
+#: :func:`chamber_log_ratios` of concrete samples: one compilation per log length, where its
+#: operations one by one compiled five
+_chamber_log_ratios = jax.jit(chamber_log_ratios)
+
+
 def log_volume_ratios(x: np.ndarray, l_a0: float, l_b0: float,
                       span: float | None) -> tuple[jnp.ndarray, jnp.ndarray] | None:
     """:func:`chamber_log_ratios` of ``x``, when the drive has a chamber ``span``
     (:func:`log_volume_span`; None: None)."""
-    return None if span is None else chamber_log_ratios(jnp.asarray(x, dtype=float), l_a0, l_b0)
+    return None if span is None else _chamber_log_ratios(jnp.asarray(x, dtype=float), l_a0,
+                                                         l_b0)
 
 
 def _check_chamber_lengths(x: np.ndarray, l_a0: float, l_b0: float, modes, *, rig: Rig,

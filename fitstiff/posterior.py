@@ -489,7 +489,7 @@ def sample_posterior(logs_or_fit: Sequence[Log] | FitResult, model: Model | str 
                      backend: str | os.PathLike | None = None, resume: bool = False,
                      progress: bool | None = None, draws: int = 200,
                      moves: str = DEFAULT_MOVES, integrate_offsets: bool = True,
-                     release: bool = True) -> Posterior:
+                     release: bool = False) -> Posterior:
     """Sample the posterior of ``model`` given ``logs`` with emcee.
 
     Args:
@@ -523,8 +523,10 @@ def sample_posterior(logs_or_fit: Sequence[Log] | FitResult, model: Model | str 
         release: free JAX's compiled functions between the phases (fit, noise settings,
             sampling, summaries; :func:`fitstiff._jax.release_compiled`): each phase's
             compilations are needed in it alone, and kept they add up (the default 4-log
-            posterior: about 1 000 MB peak resident kept, 610 MB released). Other jitted
-            functions of the process are traced again on their next call.
+            posterior: about 1 000 MB peak resident kept, 625 MB released). Every jitted
+            function of the process is traced and compiled again on its next call, which
+            without a persistent compilation cache costs seconds (``fitstiff posterior``
+            releases; it has the cache).
 
     Returns:
         A :class:`Posterior`; ``diagnostics.converged`` is False (with the reason) when the

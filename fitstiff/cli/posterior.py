@@ -125,7 +125,7 @@ def run(args) -> int:
                 steps=args.steps, tau_multiple=args.tau_multiple, check_every=args.check_every,
                 thin=args.thin, seed=args.seed, backend=partial, resume=args.resume,
                 draws=args.draws, moves=args.moves,
-                integrate_offsets=not args.sample_offsets)
+                integrate_offsets=not args.sample_offsets, release=True)
         except KeyboardInterrupt:
             if partial.exists():
                 sys.stderr.write(f"fitstiff posterior: the chain so far is kept in {partial}; "
