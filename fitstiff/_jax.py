@@ -26,10 +26,10 @@ def release_compiled() -> None:
 
     A long pipeline compiles functions it needs in one phase only (a fit's Jacobians, the
     turning-point columns, the sampler's log-posterior); kept, they add up: the default
-    four-log posterior peaked at about 1 000 MB resident, releasing them between its phases
-    at about 610 MB (``benchmarks/posterior_default.py``). A function called again is traced
-    again, and its executable read from the persistent compilation cache when one is set
-    (the command line's) instead of compiled.
+    four-log posterior peaked at 985 MB resident, releasing them between its phases at
+    563-585 MB (``benchmarks/posterior_default.py``, warm compilation cache). A function
+    called again is traced again, and its executable read from the persistent compilation
+    cache when one is set (the command line's) instead of compiled.
     """
     jax.clear_caches()
     gc.collect()

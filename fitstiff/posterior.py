@@ -523,7 +523,7 @@ def sample_posterior(logs_or_fit: Sequence[Log] | FitResult, model: Model | str 
         release: free JAX's compiled functions between the phases (fit, noise settings,
             sampling, summaries; :func:`fitstiff._jax.release_compiled`): each phase's
             compilations are needed in it alone, and kept they add up (the default 4-log
-            posterior: about 1 000 MB peak resident kept, 625 MB released). Every jitted
+            posterior: 985 MB peak resident kept, 563-585 MB released). Every jitted
             function of the process is traced and compiled again on its next call, which
             without a persistent compilation cache costs seconds (``fitstiff posterior``
             releases; it has the cache).
@@ -716,12 +716,12 @@ class LogPosterior:
     ``vectorize=True``): ``theta``, or with ``coordinates`` its sampled entries (the others
     integrated out by the prepared ``noise``).
 
-    ``one(coords)`` is the JAX function of one row's log-posterior; calls compute the same as two ``vmap``-ed, compiled functions
-    (the residuals, then likelihood and priors) for ``batch`` rows (half the ensemble:
-    emcee's red-blue moves), padding the last chunk, so they compile once. Compilations are
-    shared by every instance for the same problem, noise model, priors, batch and
-    coordinates. A call returns the log-posteriors; :meth:`rows` also the statistics (emcee's
-    blobs).
+    ``one(coords)`` is the JAX function of one row's log-posterior; calls compute the same
+    as two ``vmap``-ed, compiled functions (the residuals, then likelihood and priors) for
+    ``batch`` rows (half the ensemble: emcee's red-blue moves), padding the last chunk, so
+    they compile once. Compilations are shared by every instance for the same problem, noise
+    model, priors, batch and coordinates. A call returns the log-posteriors; :meth:`rows`
+    also the statistics (emcee's blobs).
 
     Args:
         problem: the problem sampled.
