@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import dataclasses
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import emcee
 import numpy as np
@@ -43,10 +43,12 @@ class Check:
 
 
 def run_chunks(sampler: emcee.EnsembleSampler, state, *, names: Sequence[str], steps: int,
-                tau_multiple: float, check_every: int, progress: bool) -> Check:
+                tau_multiple: float, check_every: int, progress: bool,
+                interrupted: Callable[[], bool] | None = None) -> Check:
     """Run until the convergence rules hold or ``steps`` is reached; checks at multiples of
     ``check_every`` (absolute step numbers, so a resumed run stops where an uninterrupted
-    one would)."""
+    one would). ``interrupted`` is asked after every step; ``True`` raises
+    :class:`KeyboardInterrupt` there (the steps so far are in the sampler's backend)."""
     from tqdm.auto import tqdm
 
     done = sampler.iteration
@@ -57,6 +59,8 @@ def run_chunks(sampler: emcee.EnsembleSampler, state, *, names: Sequence[str], s
             stop = min(steps, (done // check_every + 1) * check_every)
             for latest in sampler.sample(state, iterations=stop - done, store=True):
                 bar.update(1)
+                if interrupted is not None and interrupted():
+                    raise KeyboardInterrupt
             state = latest
             done = stop
             check = check_convergence(sampler, names, tau_multiple, check_every)

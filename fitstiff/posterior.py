@@ -489,7 +489,8 @@ def sample_posterior(logs_or_fit: Sequence[Log] | FitResult, model: Model | str 
                      backend: str | os.PathLike | None = None, resume: bool = False,
                      progress: bool | None = None, draws: int = 200,
                      moves: str = DEFAULT_MOVES, integrate_offsets: bool = True,
-                     release: bool = False) -> Posterior:
+                     release: bool = False,
+                     interrupted: Callable[[], bool] | None = None) -> Posterior:
     """Sample the posterior of ``model`` given ``logs`` with emcee.
 
     Args:
@@ -527,6 +528,10 @@ def sample_posterior(logs_or_fit: Sequence[Log] | FitResult, model: Model | str 
             function of the process is traced and compiled again on its next call, which
             without a persistent compilation cache costs seconds (``fitstiff posterior``
             releases; it has the cache).
+        interrupted: asked after every step; ``True`` stops the run with
+            :class:`KeyboardInterrupt`, the chain so far kept in ``backend`` (the command
+            line's signal handlers: a signal's exception raised while a garbage-collection
+            callback runs is dropped by Python, and the run went on).
 
     Returns:
         A :class:`Posterior`; ``diagnostics.converged`` is False (with the reason) when the
@@ -604,7 +609,8 @@ def sample_posterior(logs_or_fit: Sequence[Log] | FitResult, model: Model | str 
     try:
         check = run_chunks(sampler, state, names=coordinates.names(problem), steps=steps,
                             tau_multiple=tau_multiple, check_every=check_every,
-                            progress=sys.stderr.isatty() if progress is None else progress)
+                            progress=sys.stderr.isatty() if progress is None else progress,
+                            interrupted=interrupted)
     finally:
         if store:
             store.backend.flush()      # also when interrupted: no sampled step is lost

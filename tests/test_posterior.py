@@ -371,6 +371,45 @@ def test_killed_run_resumes_to_the_uninterrupted_chain(tmp_path):
     np.testing.assert_array_equal(_chain(killed / "chain.h5")[0], chain)
 
 
+@pytest.mark.filterwarnings("ignore::pytest.PytestUnraisableExceptionWarning")
+def test_an_interrupt_dropped_by_python_still_stops_the_run(tmp_path):
+    """A signal's KeyboardInterrupt raised inside a garbage-collection callback (JAX has one)
+    is dropped by Python: the command line's handler records it and the sampler asks after
+    every step, so the run stops there with the chain kept (a kill was once ignored so)."""
+    import gc
+
+    from fitstiff.cli.posterior import _Interrupts
+
+    with _Interrupts() as interrupts:
+        def collecting(phase, info):
+            if phase == "start":
+                interrupts(signal.SIGTERM, None)        # the handler, as the signal runs it
+
+        gc.callbacks.append(collecting)
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                gc.collect()                             # "Exception ignored in: ..."
+        finally:
+            gc.callbacks.remove(collecting)
+    assert interrupts.received
+    assert signal.getsignal(signal.SIGTERM) is not interrupts      # handlers restored
+
+    rng = np.random.default_rng(1)
+    log = _linear_log()
+    force = 15.0 * np.gradient(log.displacement, log.time) + 0.2 * rng.standard_normal(len(log))
+    asked = []
+    chain = tmp_path / "chain.h5"
+    with pytest.raises(KeyboardInterrupt):
+        sample_posterior([Log("lin", log.displacement, force, log.time)], "viscous",
+                         fit_options={"denoise": False}, noise_model=Gaussian(), walkers=8,
+                         steps=200, check_every=100, seed=1, progress=False, backend=chain,
+                         interrupted=lambda: asked.append(1) or len(asked) >= 7)
+    stored = ChainStore(chain, read_only=True).read()
+    assert stored.chain.shape == (7, 8, 1)                 # the seventh step, then stopped
+    assert ChainBackend(chain, read_only=True).get_blobs().shape[:2] == (7, 8)
+
+
 def test_chain_file_is_an_emcee_backend_and_older_files_still_read(tmp_path):
     """Issue 14: the chain is stored through emcee's backend interface (ChainBackend), in
     fitstiff's own layout, whatever the batching: a sampler writing through it gives emcee's

@@ -92,8 +92,30 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     return parser
 
 
-def _raise_interrupt(signum, frame):
-    raise KeyboardInterrupt
+class _Interrupts:
+    """SIGTERM and SIGINT as :class:`KeyboardInterrupt`, not lost: Python drops an exception
+    raised while a garbage-collection callback runs (JAX registers one), and a ``kill``
+    landing there let the run go on to its end. The signal is also recorded, and the
+    sampler asks after every step (:func:`~fitstiff.posterior.sample_posterior`
+    ``interrupted``)."""
+
+    SIGNALS = (signal.SIGTERM, signal.SIGINT)
+
+    def __init__(self):
+        self.received = False
+        self._previous: dict[int, object] = {}
+
+    def __call__(self, signum, frame):
+        self.received = True
+        raise KeyboardInterrupt
+
+    def __enter__(self) -> _Interrupts:
+        self._previous = {s: signal.signal(s, self) for s in self.SIGNALS}
+        return self
+
+    def __exit__(self, *exc) -> None:
+        for s, handler in self._previous.items():
+            signal.signal(s, handler)
 
 
 def run(args) -> int:
@@ -117,22 +139,23 @@ def run(args) -> int:
             shutil.copyfile(out.path / CHAIN, partial)   # the finished chain stays until replaced
         elif not args.resume:
             partial.unlink(missing_ok=True)
-        previous = signal.signal(signal.SIGTERM, _raise_interrupt)
         try:
-            posterior = sample_posterior(
-                logs, args.model, fix=fix, fit_options=options,
-                noise_model=args.noise_model, priors=args.priors, walkers=args.walkers,
-                steps=args.steps, tau_multiple=args.tau_multiple, check_every=args.check_every,
-                thin=args.thin, seed=args.seed, backend=partial, resume=args.resume,
-                draws=args.draws, moves=args.moves,
-                integrate_offsets=not args.sample_offsets, release=True)
+            with _Interrupts() as interrupts:
+                posterior = sample_posterior(
+                    logs, args.model, fix=fix, fit_options=options,
+                    noise_model=args.noise_model, priors=args.priors, walkers=args.walkers,
+                    steps=args.steps, tau_multiple=args.tau_multiple,
+                    check_every=args.check_every, thin=args.thin, seed=args.seed,
+                    backend=partial, resume=args.resume, draws=args.draws, moves=args.moves,
+                    integrate_offsets=not args.sample_offsets, release=True,
+                    interrupted=lambda: interrupts.received)
+                if interrupts.received:         # dropped after the last step: still a stop
+                    raise KeyboardInterrupt
         except KeyboardInterrupt:
             if partial.exists():
                 sys.stderr.write(f"fitstiff posterior: the chain so far is kept in {partial}; "
                                  "continue it with --resume\n")
             raise
-        finally:
-            signal.signal(signal.SIGTERM, previous)
         out.commit_partial(CHAIN)
         posterior.to_inference_data().to_netcdf(str(out.temp_path(INFERENCE_DATA)))
         out.commit(INFERENCE_DATA)
