@@ -67,8 +67,13 @@ SOLVERS = {
 #: would exceed this: optimistix's Levenberg-Marquardt holds about four Jacobian-sized
 #: arrays at once (the accepted point's, the trial point's, the damped operator and its QR;
 #: XLA's buffer assignment), 1.2 GB peak for a 1 M-sample log with two pressure channels
-#: (``benchmarks/fit_memory.py``)
-LEAN_JACOBIAN_MB = 64.0
+#: (``benchmarks/fit_memory.py``); and the default covariance summary shares one vectorised
+#: Jacobian between the covariance and the turning-point columns (:func:`_summary_evaluate`).
+#: At 64 MB (the former threshold) that summary peaked 100 MB above the two it replaced
+#: (518 001 samples: 932 against 832 MB). At 48 MB a default fit of 370 001 samples (a
+#: 44 MB Jacobian) peaks at 794 MB, and a 444 001-sample log takes the lean path (652 MB,
+#: 18.7 s, against 776 MB and 22.3 s on the default path before)
+LEAN_JACOBIAN_MB = 48.0
 _CORRELATION_WARNING = 0.95
 _SINGULAR = 1e-7       # relative singular value below which a direction is undetermined
 _AT_BOUND = 1e-3          # a parameter this close to a bound (share of its span) sits at it
@@ -246,6 +251,12 @@ def _correlation(cov: np.ndarray) -> np.ndarray:
 
 
 # -- starting values ----------------------------------------------------------------------
+#: a chamber-only model's predicted force on a drive and its linearised stiffness, compiled
+#: once per model structure (no data inside)
+_chamber_start = jax.jit(lambda model, drive: (model.predict(drive),
+                                               model.term("chamber").stiffness(drive)))
+
+
 def initial_guess(problem: Problem, *,
                   bases: Sequence[str] | None = None) -> tuple[Model, dict[str, np.ndarray]]:
     """Starting values from the data: levels from the sliding plateaus, slope from the samples
@@ -258,15 +269,14 @@ def initial_guess(problem: Problem, *,
     """
     model = problem.model
     chamber_only = [Model((model.term("chamber"),))] if model.has("chamber") else []
-    predict = _predict
     levels, offsets, slopes, states = [], [], [], []
     for log, seg, drive in zip(problem.logs, problem.segmentations, problem.drives):
         force = np.asarray(log.force)
         k_chamber = 0.0
         if chamber_only:
-            force = force - np.asarray(predict(chamber_only[0], drive))
-            k_chamber = float(model.term("chamber").stiffness(drive))
-            k_chamber = k_chamber if math.isfinite(k_chamber) else 0.0
+            chamber_force, k_chamber = _chamber_start(chamber_only[0], drive)
+            force = force - np.asarray(chamber_force)
+            k_chamber = float(k_chamber) if math.isfinite(float(k_chamber)) else 0.0
         sliding = seg.mask("sliding")
         pool = force[sliding] if sliding.sum() > 20 else force
         lo, hi = np.percentile(pool, [5, 95])
@@ -346,10 +356,6 @@ class _Run(NamedTuple):
     message: str           # the solver's status in words
     steps: int
     cost: float
-
-
-#: a model's predicted force on a drive, compiled once per model structure (no data inside)
-_predict = jax.jit(lambda model, drive: model.predict(drive))
 
 
 def _solve(p: Problem, theta0, *, solver: str, rtol: float, atol: float, max_steps: int):
@@ -452,7 +458,7 @@ def fit_problem(problem: Problem, *, solver: str = "lm", starts: int = 1, seed: 
     converged_runs = [r for r in runs if r[0]]
     best = min(converged_runs or runs, key=lambda r: r[1] if np.isfinite(r[1]) else np.inf)
     agreed = sum(1 for r in converged_runs
-                 if abs(r[1] - best[1]) <= 1e-6 * max(best[1], 1.0)
+                 if r is best or abs(r[1] - best[1]) <= 1e-6 * max(best[1], 1.0)
                  and np.allclose(problem.par.physical(jnp.asarray(r[2][:problem.par.size])),
                                  problem.par.physical(jnp.asarray(best[2][:problem.par.size])),
                                  rtol=1e-3, atol=1e-9))
@@ -505,8 +511,10 @@ def _summarise(problem: Problem, theta, *, converged: bool, message: str, steps:
     spans = tuple(tuple((s.span.start, s.span.stop) for s in problem.residual_series()
                         if s.log == i) for i in range(problem.n_logs))
     ev = problem.compiled(_summary_evaluate, spans=spans, sequential=lean)
-    eiv = problem.compiled(_eiv_gram, sequential=lean)
-    summary = jax.tree.map(np.asarray, ev(theta))._replace(eiv_gram=np.asarray(eiv(theta)))
+    summary = jax.tree.map(np.asarray, ev(theta))
+    if lean:    # apart: the two working sets of a long log do not add up
+        summary = summary._replace(eiv_gram=np.asarray(
+            problem.compiled(_eiv_gram)(theta)))
     check_finite(problem.logs, "the fit's whitened residuals and Jacobian", summary.largest,
                  limit=_RESIDUAL_LIMIT)
     check_finite(problem.logs, "the fitted parameter values", summary.values, summary.dphys)
@@ -514,7 +522,7 @@ def _summarise(problem: Problem, theta, *, converged: bool, message: str, steps:
     n_data, n_par = problem.n_data, problem.size
     cost = float(summary.cost)
     s2 = cost / max(n_data - n_par, 1)
-    per_log_pred = problem.per_log(theta)
+    per_log_pred = [{"force": f} for f in problem.unpad(summary.force)]
     rho = _lag1(problem, per_log_pred)
     inflation = (1 + rho) / (1 - rho) if rho > 0 else 1.0
 
@@ -581,7 +589,7 @@ def _summarise(problem: Problem, theta, *, converged: bool, message: str, steps:
     for name in identifiability.derived:
         derived[name] = (derived[name][0], float("nan"))
 
-    model, nuis = problem.unpack(theta)
+    model, nuis = problem.unpack_physical(values)
     per_log = []
     raw_sq, raw_n = 0.0, 0
     for i, (log, pred) in enumerate(zip(problem.logs, per_log_pred)):
@@ -590,7 +598,7 @@ def _summarise(problem: Problem, theta, *, converged: bool, message: str, steps:
         raw_sq += float(res @ res)
         raw_n += res.size
         k_ch = (derived_display("chamber_stiffness_N_per_mm",
-                                float(model.term("chamber").stiffness(problem.drives[i])))
+                                float(summary.chamber_stiffness[i]))
                 if model.has("chamber") else 0.0)
         entry = {"name": log.name, "file": str(log.path) if log.path else None,
                  "samples": len(log), "rms_N": math.sqrt(float(res @ res) / max(res.size, 1)),
@@ -663,10 +671,10 @@ def _identifiability(problem: Problem, summary: _Summary,
 
 class _Summary(NamedTuple):
     """What the covariance summary needs of the residuals ``r`` and their Jacobian ``J`` at
-    the optimum, reduced inside two compiled functions (:func:`_summary_evaluate`,
-    :func:`_eiv_gram`; apart, their working sets do not add up): no ``(residuals,
-    parameters)`` array leaves them (a 1 M-sample log's ``J`` and its copies are hundreds of
-    MB, ``benchmarks/fit_memory.py``)."""
+    the optimum, reduced inside one compiled function (:func:`_summary_evaluate`; on a lean
+    problem, two: :func:`_eiv_gram` apart, so that their working sets do not add up): no
+    ``(residuals, parameters)`` array leaves them (a 1 M-sample log's ``J`` and its copies
+    are hundreds of MB, ``benchmarks/fit_memory.py``)."""
 
     cost: jax.Array           # |r|^2
     largest: jax.Array        # max |entry| of r and J (NaN counts as infinite)
@@ -677,8 +685,11 @@ class _Summary(NamedTuple):
     gradient: jax.Array       # their gradient in theta
     state_cross: jax.Array    # (logs, size): J^T u_i, u_i the residuals' derivative by log i's
     state_norm2: jax.Array    # (logs,): |u_i|^2          initial friction state (physical)
-    #: C^T C of the turning-point error columns C (errors in variables; :func:`_eiv_gram`)
-    eiv_gram: np.ndarray | None = None
+    force: tuple              # per group: the predicted force (leading log axis, padded)
+    chamber_stiffness: jax.Array  # (logs,): the chamber's at each log's start (N/m; none: 0)
+    #: C^T C of the turning-point error columns C (errors in variables; on a lean problem
+    #: from :func:`_eiv_gram`)
+    eiv_gram: jax.Array | None
 
 
 def _summary_evaluate(problem: Problem, theta, *, spans: tuple[tuple[tuple[int, int], ...], ...],
@@ -686,15 +697,36 @@ def _summary_evaluate(problem: Problem, theta, *, spans: tuple[tuple[tuple[int, 
     """The :class:`_Summary` at ``theta`` (compiled by
     :meth:`~fitstiff.problem.Problem.compiled`); ``spans``: per log, its ``(start, stop)``
     entries of the residual vector; ``sequential``: build ``J`` one column at a time
-    (:func:`fitstiff.lm.jacobian_rows`)."""
+    (:func:`fitstiff.lm.jacobian_rows`) and leave ``eiv_gram`` to :func:`_eiv_gram`.
+
+    Otherwise one compiled function shares ``J`` between the covariance and the
+    turning-point columns (``C^T = J^T B S``: a VJP per row of ``J^T``), and the predicted
+    force comes out of the residuals' own forward pass. On the benchmark log of
+    ``benchmarks/fit_speed.py`` a cold ``fitstiff fit`` took a median 12.6 s (15.9 s of
+    CPU) against 13.6 s (17.1 s) with the two functions and the predictions compiled apart
+    (five alternating runs each, a slow host), with the same fit.json to 1e-14; building
+    ``C^T`` one row at a time (``lax.map``, no extra memory) gained about half of that.
+    """
 
     def derived_vec(th):
         model, _ = problem.unpack(th)
         d = derived_quantities(model, problem.drives[0])
         return jnp.stack([d[k] for k in DERIVED])
 
-    r = problem.residuals(theta)
+    def residuals_and_force(xs):
+        model, nuisances = problem.unpack(theta)
+        preds = problem.model_predictions(model, nuisances, xs)
+        return problem.model_residuals(model, nuisances, xs, predictions=preds), tuple(
+            p.force for p in preds)
+
     jt = lm.jacobian_rows(problem.residuals, theta, sequential=sequential)      # J^T
+    if sequential:
+        r, force = residuals_and_force(None)
+        eiv_gram = None
+    else:
+        r, vjp, force = jax.vjp(residuals_and_force, problem.displacements(), has_aux=True)
+        ct = jax.vmap(lambda j: _scaled_cotangent(problem, vjp(j)[0]))(jt)
+        eiv_gram = lm.wide_dot(ct, ct)
     state = _state_columns(problem, theta)
     cross, norm2 = [], []
     if state.size:
@@ -719,24 +751,39 @@ def _summary_evaluate(problem: Problem, theta, *, spans: tuple[tuple[tuple[int, 
         values=problem.physical(theta), dphys=jax.jacfwd(problem.physical)(theta),
         derived=derived_vec(theta), gradient=jax.jacfwd(derived_vec)(theta),
         state_cross=jnp.stack(cross) if cross else jnp.zeros((0, size)),
-        state_norm2=jnp.stack(norm2) if norm2 else jnp.zeros(0))
+        state_norm2=jnp.stack(norm2) if norm2 else jnp.zeros(0),
+        force=force, chamber_stiffness=_chamber_stiffness(problem, theta), eiv_gram=eiv_gram)
 
 
-def _eiv_gram(problem: Problem, theta, *, sequential: bool):
-    """``C^T C`` of the errors in variables at the turning points: ``C = S B^T J`` (a JVP and
-    a VJP per parameter, one parameter at a time when ``sequential``: no ``J`` is built),
-    ``B = d(residuals)/d(displacement)``, ``S`` the displacement noise at the reversal
-    samples (0 elsewhere)."""
+def _eiv_gram(problem: Problem, theta):
+    """``C^T C`` of the errors in variables at the turning points, ``C = S B^T J`` with
+    ``B = d(residuals)/d(displacement)`` and ``S`` the turning points' errors at their
+    samples (0 elsewhere), for a lean problem: a JVP and a VJP per parameter, one parameter
+    at a time, so no ``J`` is built (:func:`_summary_evaluate` does it from its ``J``)."""
     _, vjp = jax.vjp(lambda xs: problem.residuals(theta, xs), problem.displacements())
-    scales = problem.reversal_noise()
 
     def column(e):
         j = jax.jvp(problem.residuals, (theta,), (e,))[1]
-        return jnp.concatenate([(c * s).ravel() for c, s in zip(vjp(j)[0], scales)])
+        return _scaled_cotangent(problem, vjp(j)[0])
 
-    basis = jnp.eye(theta.shape[0], dtype=theta.dtype)
-    ct = jax.lax.map(column, basis) if sequential else jax.vmap(column)(basis)     # C^T
+    ct = jax.lax.map(column, jnp.eye(theta.shape[0], dtype=theta.dtype))      # C^T
     return lm.wide_dot(ct, ct)
+
+
+def _chamber_stiffness(problem: Problem, theta):
+    """Each log's linearised chamber stiffness (N/m) at its start, 0 without a chamber."""
+    model, _ = problem.unpack(theta)
+    if not model.has("chamber"):
+        return jnp.zeros(problem.n_logs)
+    return jnp.stack([jnp.asarray(model.term("chamber").stiffness(d), dtype=float)
+                      for d in problem.drives])
+
+
+def _scaled_cotangent(problem: Problem, cotangent):
+    """A cotangent of the displacements (per group), times each sample's turning-point
+    error (0 away from the turning points), flat: a row of ``C^T``."""
+    return jnp.concatenate([(c * s).ravel() for c, s in zip(cotangent,
+                                                             problem.reversal_noise())])
 
 
 def _state_columns(problem: Problem, theta):

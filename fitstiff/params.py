@@ -125,25 +125,29 @@ class Param:
             return y * self.scale
         return lo + jnp.cumsum(jnp.exp(y))  # ordered
 
-    def inverse(self, x):
-        """Physical SI value(s) -> unconstrained; values on a bound are nudged inside."""
-        x = jnp.asarray(x, dtype=float).reshape(self.length)
+    def inverse(self, x) -> np.ndarray:
+        """Physical SI value(s) -> unconstrained; values on a bound are nudged inside.
+
+        NumPy, not traced: it maps concrete values (a start, a held value) into ``theta``.
+        As JAX operations on concrete arrays, each would be compiled on its first use in a
+        process: a cold ``fitstiff fit`` compiled about ten of them, 20-50 ms each."""
+        x = np.asarray(x, dtype=float).reshape(self.length)
         lo, hi = self.lower, self.upper
         tiny = 1e-12
         if self.transform == "identity":
             return x
         if self.transform == "log":
-            return jnp.log(jnp.maximum(x - lo, tiny * (1 + abs(lo))))
+            return np.log(np.maximum(x - lo, tiny * (1 + abs(lo))))
         if self.transform == "logit":
-            f = jnp.clip((x - lo) / (hi - lo), 1e-9, 1 - 1e-9)
-            return jnp.log(f) - jnp.log1p(-f)
+            f = np.clip((x - lo) / (hi - lo), 1e-9, 1 - 1e-9)
+            return np.log(f) - np.log1p(-f)
         if self.transform == "tanh":
             u = (x - 0.5 * (lo + hi)) / (0.5 * (hi - lo))
-            return jnp.arctanh(jnp.clip(u, -1 + 1e-9, 1 - 1e-9))
+            return np.arctanh(np.clip(u, -1 + 1e-9, 1 - 1e-9))
         if self.transform == "scaled":
             return x / self.scale
-        steps = jnp.diff(x, prepend=lo)
-        return jnp.log(jnp.maximum(steps, tiny))
+        steps = np.diff(x, prepend=lo)
+        return np.log(np.maximum(steps, tiny))
 
     def log_jacobian(self, y):
         """``log |det dx/dy|`` (for densities defined in physical space)."""
@@ -247,9 +251,10 @@ class Parameterization:
         return _array(display) * self.scales()
 
     # -- maps -------------------------------------------------------------------------------
-    def to_unconstrained(self, model) -> jnp.ndarray:
+    def to_unconstrained(self, model) -> np.ndarray:
+        """The unconstrained ``y`` of the model's free fields (NumPy; :meth:`Param.inverse`)."""
         parts = [p.inverse(getattr(model.terms[i], p.field)) for i, p, _ in self._groups]
-        return jnp.concatenate(parts) if parts else jnp.zeros(0)
+        return np.concatenate(parts) if parts else np.zeros(0)
 
     def to_model(self, y, model):
         """The model with its free fields replaced by ``forward(y)`` (differentiable)."""

@@ -321,6 +321,15 @@ class Problem:
         """``(model, {nuisance: (n_logs,) values})`` for ``theta`` (differentiable)."""
         return self.par.to_model(theta[:self.par.size], self.model), self.nuisances(theta)
 
+    def unpack_physical(self, values) -> tuple[Model, dict[str, np.ndarray]]:
+        """:meth:`unpack` of the SI values :meth:`physical` returns: no transform is
+        evaluated (NumPy in, NumPy out; the fit's summary has them from its compiled pass)."""
+        values = np.asarray(values, dtype=float)
+        model = self.par.physical_to_model(values[:self.par.size], self.model)
+        off = self.par.size + self.n_logs * np.arange(len(self.nuisance_names))
+        return model, {name: values[o:o + self.n_logs]
+                       for name, o in zip(self.nuisance_names, off)}
+
     def nuisances(self, theta):
         """``{nuisance: (n_logs,) values}`` of ``theta`` (its entries after the model's)."""
         out, off = {}, self.par.size
@@ -466,11 +475,13 @@ class Problem:
         return self.model_residuals(*self.unpack(theta), displacements, channels=channels)
 
     def model_residuals(self, model, nuisances, displacements=None, *,
-                        channels: Sequence[str] = CHANNELS):
-        """:meth:`residuals` of a given model and nuisance values."""
+                        channels: Sequence[str] = CHANNELS, predictions=None):
+        """:meth:`residuals` of a given model and nuisance values (``predictions``: their
+        :meth:`model_predictions`, when the caller has them)."""
         parts = []
-        for group, pred in zip(self._groups,
-                               self.model_predictions(model, nuisances, displacements)):
+        if predictions is None:
+            predictions = self.model_predictions(model, nuisances, displacements)
+        for group, pred in zip(self._groups, predictions):
             if "force" in channels:
                 parts.append(((pred.force - group.force) * group.weight).ravel())
             for c, measured in enumerate(group.pressure):

@@ -397,6 +397,34 @@ def test_the_memory_lean_path_gives_the_fit_of_the_default_one(monkeypatch):
     np.testing.assert_allclose(lean.rms_N, default.rms_N, rtol=1e-7)
 
 
+def test_the_summary_shares_its_jacobian_with_the_turning_point_columns():
+    """The default summary builds C^T = J^T B S from its own J and takes the predicted force
+    from the residuals' forward pass; both equal what the lean path computes apart
+    (_eiv_gram, one JVP and VJP per parameter) and what per_log predicts. Calibration dataset
+    0 has AR(1) displacement noise: its turning points' errors are not zero."""
+    import fitstiff.fitting as fitting
+    from fitstiff._testing.calibration import dataset as calibration_dataset
+    from fitstiff.problem import Problem
+
+    logs, _ = calibration_dataset(0)
+    problem = Problem(logs[:2], "chamber+dahl")
+    theta = problem.pack(*fitting.initial_guess(problem))
+    spans = tuple(tuple((s.span.start, s.span.stop) for s in problem.residual_series()
+                        if s.log == i) for i in range(problem.n_logs))
+    shared = problem.compiled(fitting._summary_evaluate, spans=spans, sequential=False)(theta)
+    apart = problem.compiled(fitting._summary_evaluate, spans=spans, sequential=True)(theta)
+    assert apart.eiv_gram is None
+    gram = np.asarray(problem.compiled(fitting._eiv_gram)(theta))
+    assert np.abs(gram).max() > 0
+    np.testing.assert_allclose(np.asarray(shared.eiv_gram), gram, rtol=1e-10,
+                               atol=1e-12 * np.abs(gram).max())
+    per_log = problem.per_log(theta)
+    for summary in (shared, apart):
+        np.testing.assert_allclose(float(summary.cost), float(apart.cost), rtol=1e-12)
+        for force, pred in zip(problem.unpad(summary.force), per_log):
+            np.testing.assert_array_equal(force, pred["force"])
+
+
 def test_fit_json_reports_the_marginal_displacement_noise_of_correlated_noise():
     """Calibration dataset 0: 1 um of AR(1) displacement noise with lag-1 correlation 0.73.
     Read as white noise its level looks like 0.46 um; fit.json reports the marginal level and
