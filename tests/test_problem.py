@@ -90,3 +90,22 @@ def test_the_per_log_nuisances_go_through_the_transform_layer(logs):
     expected = float(problem.par.log_jacobian(theta[:n])) + float(
         np.sum(np.log(np.diag(jac)[state])))
     assert float(problem.log_jacobian(theta)) == pytest.approx(expected, rel=1e-12)
+
+
+def test_unpack_physical_is_unpack_without_the_transforms(logs):
+    """The fit's summary reads the fitted model and the per-log nuisances from the physical
+    values it computed (unpack_physical): the same model and nuisances as unpack, in NumPy."""
+    from fitstiff.params import Parameterization
+
+    problem = Problem(logs, "chamber+dahl", free=["closing_pressure"])
+    theta = problem.pack(problem.model, {"offset": [0.5, -0.2], "friction_state0": [0.3, -0.5],
+                                         "closing_pressure": [5.0e5, 6.2e5]})
+    model, nuisances = problem.unpack(theta)
+    model_np, nuisances_np = problem.unpack_physical(np.asarray(problem.physical(theta)))
+    par = Parameterization(problem.model)
+    assert par.values(model_np) == pytest.approx(par.values(model), rel=1e-14)
+    assert model_np.spec == model.spec
+    assert list(nuisances_np) == list(nuisances) == list(problem.nuisance_names)
+    for name, values in nuisances.items():
+        assert isinstance(nuisances_np[name], np.ndarray)
+        np.testing.assert_allclose(nuisances_np[name], values, rtol=1e-14, err_msg=name)
