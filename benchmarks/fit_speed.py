@@ -104,6 +104,8 @@ def main() -> None:
                         help="cold CLI runs, each with an empty cache (median)")
     parser.add_argument("--json", metavar="FILE")
     args = parser.parse_args()
+    if args.repeats < 1 or args.cold_runs < 1:
+        parser.error("--repeats and --cold-runs must be at least 1")
     log = make_log()
     problem = Problem([log], "chamber+dahl")
     t0 = time.perf_counter()
