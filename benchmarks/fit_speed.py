@@ -96,14 +96,14 @@ REFERENCE_HOST_FIT_S = 0.140
 WARM_TARGET_S, COLD_TARGET_S = 0.020, 6.0
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=5,
                         help="warm fits and reference fits timed (median)")
     parser.add_argument("--cold-runs", type=int, default=3,
                         help="cold CLI runs, each with an empty cache (median)")
     parser.add_argument("--json", metavar="FILE")
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     if args.repeats < 1 or args.cold_runs < 1:
         parser.error("--repeats and --cold-runs must be at least 1")
     log = make_log()

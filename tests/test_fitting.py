@@ -436,3 +436,24 @@ def test_fit_json_reports_the_marginal_displacement_noise_of_correlated_noise():
     for entry in result.to_dict()["per_log"]:
         assert entry["displacement_noise_um"] == pytest.approx(1.0, rel=0.25)
         assert entry["displacement_noise_rho"] == pytest.approx(truth["ar1"], abs=0.15)
+
+
+def test_fit_speed_benchmark_runs_small(tmp_path):
+    """benchmarks/fit_speed.py once each (a warm fit, a reference fit, a cold and a second
+    CLI fit): both fits find the same seal, and its targets are the ratios it states."""
+    from benchmarks import fit_speed
+
+    out = tmp_path / "fs.json"
+    fit_speed.main(["--repeats", "1", "--cold-runs", "1", "--json", str(out)])
+    r = json.loads(out.read_text())
+    assert r["fitstiff_converged"] and len(r["cold_cli_runs_s"]) == 1
+    assert r["sigma0_fitstiff_N_per_mm"] == pytest.approx(r["sigma0_reference_N_per_mm"],
+                                                          rel=1e-5)
+    assert r["Fc_fitstiff_N"] == pytest.approx(r["Fc_reference_N"], rel=1e-5)
+    t = r["targets"]
+    assert r["cold_cli_in_reference_fits"] == pytest.approx(r["cold_cli_s"]
+                                                            / r["reference_fit_s"])
+    assert t["cold_met"] == (r["cold_cli_in_reference_fits"]
+                             <= t["cold_in_reference_fits_at_most"])
+    assert t["warm_met"] == (r["speedup_warm_vs_reference"] >= t["warm_speedup_at_least"])
+    assert t["cold_in_reference_fits_at_most"] == pytest.approx(6.0 / 0.140)
