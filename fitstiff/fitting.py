@@ -274,9 +274,10 @@ def initial_guess(problem: Problem, *,
         force = np.asarray(log.force)
         k_chamber = 0.0
         if chamber_only:
-            chamber_force, k_chamber = _chamber_start(chamber_only[0], drive)
+            chamber_force, stiffness = _chamber_start(chamber_only[0], drive)
             force = force - np.asarray(chamber_force)
-            k_chamber = float(k_chamber) if math.isfinite(float(k_chamber)) else 0.0
+            k_chamber = float(stiffness)
+            k_chamber = k_chamber if math.isfinite(k_chamber) else 0.0
         sliding = seg.mask("sliding")
         pool = force[sliding] if sliding.sum() > 20 else force
         lo, hi = np.percentile(pool, [5, 95])
@@ -709,12 +710,12 @@ def _summary_evaluate(problem: Problem, theta, *, spans: tuple[tuple[tuple[int, 
     """
 
     def derived_vec(th):
-        model, _ = problem.unpack(th)
-        d = derived_quantities(model, problem.drives[0])
+        d = derived_quantities(problem.unpack(th)[0], problem.drives[0])
         return jnp.stack([d[k] for k in DERIVED])
 
+    model, nuisances = problem.unpack(theta)
+
     def residuals_and_force(xs):
-        model, nuisances = problem.unpack(theta)
         preds = problem.model_predictions(model, nuisances, xs)
         return problem.model_residuals(model, nuisances, xs, predictions=preds), tuple(
             p.force for p in preds)
@@ -752,7 +753,7 @@ def _summary_evaluate(problem: Problem, theta, *, spans: tuple[tuple[tuple[int, 
         derived=derived_vec(theta), gradient=jax.jacfwd(derived_vec)(theta),
         state_cross=jnp.stack(cross) if cross else jnp.zeros((0, size)),
         state_norm2=jnp.stack(norm2) if norm2 else jnp.zeros(0),
-        force=force, chamber_stiffness=_chamber_stiffness(problem, theta), eiv_gram=eiv_gram)
+        force=force, chamber_stiffness=_chamber_stiffness(problem, model), eiv_gram=eiv_gram)
 
 
 def _eiv_gram(problem: Problem, theta):
@@ -770,9 +771,8 @@ def _eiv_gram(problem: Problem, theta):
     return lm.wide_dot(ct, ct)
 
 
-def _chamber_stiffness(problem: Problem, theta):
+def _chamber_stiffness(problem: Problem, model):
     """Each log's linearised chamber stiffness (N/m) at its start, 0 without a chamber."""
-    model, _ = problem.unpack(theta)
     if not model.has("chamber"):
         return jnp.zeros(problem.n_logs)
     return jnp.stack([jnp.asarray(model.term("chamber").stiffness(d), dtype=float)
