@@ -257,8 +257,9 @@ _chamber_start = jax.jit(lambda model, drive: (model.predict(drive),
                                                model.term("chamber").stiffness(drive)))
 
 
-def initial_guess(problem: Problem, *,
-                  bases: Sequence[str] | None = None) -> tuple[Model, dict[str, np.ndarray]]:
+def initial_guess(problem: Problem, *, bases: Sequence[str] | None = None,
+                  samples: Sequence[np.ndarray | None] | None = None
+                  ) -> tuple[Model, dict[str, np.ndarray]]:
     """Starting values from the data: levels from the sliding plateaus, slope from the samples
     right after reversals, offsets from the plateau midlines, the chamber from geometry.
 
@@ -266,11 +267,22 @@ def initial_guess(problem: Problem, *,
     share of the estimate; ``bases`` names the bases that share it (default: all; the
     diagnosis gives the baseline's, its candidate Maxwell-slip starts at its null).
     Fixed parameters keep their values; parameters the data do not inform keep the model's.
+
+    ``samples`` (the diagnosis' folds) restricts what informs the shared estimates: per log, a
+    boolean mask of the samples that may (default: all), or ``None`` for a log that informs
+    only its own nuisances (a held-out log, whose offset and initial state are fitted to it
+    alone). Each log's offset comes from the samples it may use, its initial friction state
+    from its first sample (a held-out part's own nuisance, as a left-out log's is).
     """
     model = problem.model
     chamber_only = [Model((model.term("chamber"),))] if model.has("chamber") else []
+    if samples is None:
+        samples = [np.ones(len(log), dtype=bool) for log in problem.logs]
     levels, offsets, slopes, states = [], [], [], []
-    for log, seg, drive in zip(problem.logs, problem.segmentations, problem.drives):
+    for log, seg, drive, seen in zip(problem.logs, problem.segmentations, problem.drives,
+                                     samples):
+        shared = seen is not None
+        seen = np.ones(len(log), dtype=bool) if seen is None else np.asarray(seen, dtype=bool)
         force = np.asarray(log.force)
         k_chamber = 0.0
         if chamber_only:
@@ -278,15 +290,17 @@ def initial_guess(problem: Problem, *,
             force = force - np.asarray(chamber_force)
             k_chamber = float(stiffness)
             k_chamber = k_chamber if math.isfinite(k_chamber) else 0.0
-        sliding = seg.mask("sliding")
-        pool = force[sliding] if sliding.sum() > 20 else force
+        sliding = seg.mask("sliding") & seen
+        pool = force[sliding] if sliding.sum() > 20 else force[seen]
         lo, hi = np.percentile(pool, [5, 95])
         level, offset = max((hi - lo) / 2, 1e-3), (hi + lo) / 2
-        levels.append(level)
         offsets.append(offset)
         states.append(float(np.clip((force[0] - offset) / level, -0.9, 0.9)))
+        if not shared:
+            continue
+        levels.append(level)
         x = np.asarray(drive.displacement)
-        for r in seg.reversals:
+        for r in seg.reversals[seen[seg.reversals]]:
             window = 0.1 * level / 40e3
             after = np.flatnonzero(np.abs(x[r:r + 2000] - x[r]) <= window)
             after = after[after == np.arange(after.size)] + r   # contiguous from r
@@ -318,7 +332,7 @@ def fit(logs: Sequence[Log], model: Model | str, *, fix: Mapping[str, float] | I
         rtol: float = 1e-5, atol: float = 1e-5, denoise: bool | str = "auto",
         sample_range: tuple[int | None, int | None] | None = None,
         weights: Mapping[str, float] | None = None, skip: int = 0,
-        free: Iterable[str] = ()) -> FitResult:
+        free: Iterable[str] = (), exclude: Sequence[tuple[int, int]] = ()) -> FitResult:
     """Fit ``model`` jointly to ``logs`` by nonlinear least squares.
 
     Args:
@@ -331,7 +345,8 @@ def fit(logs: Sequence[Log], model: Model | str, *, fix: Mapping[str, float] | I
             ``"lm-normal"``, which ``FitResult.solver`` then names).
         starts: number of starts; the first from :func:`initial_guess`, the others random
             perturbations of it (``seed``); the best converged run is kept.
-        denoise, sample_range, weights, skip, free: see :class:`~fitstiff.problem.Problem`
+        denoise, sample_range, weights, skip, free, exclude: see
+            :class:`~fitstiff.problem.Problem`
             (``free=["closing_pressure"]`` fits each log's closing pressure).
 
     Returns:
@@ -343,7 +358,7 @@ def fit(logs: Sequence[Log], model: Model | str, *, fix: Mapping[str, float] | I
         >>> print(result.table())                                        # doctest: +SKIP
     """
     problem = Problem(logs, model, fix=fix, denoise=denoise, sample_range=sample_range,
-                      weights=weights, skip=skip, free=free)
+                      weights=weights, skip=skip, free=free, exclude=exclude)
     return fit_problem(problem, solver=solver, starts=starts, seed=seed, max_steps=max_steps,
                        rtol=rtol, atol=atol)
 

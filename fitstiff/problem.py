@@ -61,7 +61,7 @@ NUISANCE_PARAMS = {
 #: per-log nuisance names (fit.json ``per_log``)
 NUISANCES = tuple(NUISANCE_PARAMS)
 #: keyword options of :class:`Problem` that a fit passes through (and a report must repeat)
-PROBLEM_OPTIONS = ("denoise", "sample_range", "weights", "skip", "free")
+PROBLEM_OPTIONS = ("denoise", "sample_range", "weights", "skip", "free", "exclude")
 #: nuisances held unless asked for with ``free``
 OPTIONAL_NUISANCES = ("closing_pressure",)
 #: a log shorter than this times the longest of its stack is run in a stack of its own
@@ -117,6 +117,8 @@ class Problem:
         weights: extra weight per segmentation region, e.g. ``{"presliding": 4.0}``.
         skip: samples at the start of every log that drive the model but weigh 0 (a warm-up
             that settles the friction state).
+        exclude: sample index ranges ``(start, stop)`` of every log that drive the model but
+            weigh 0 (a glitch, or a block held out to be predicted).
         free: optional nuisances to fit: ``"closing_pressure"`` (each log's closing pressure
             of its closed chambers; ``supply_bar`` then only gives the start value).
         segmentations: one :class:`~fitstiff.segmentation.Segmentation` per log (reversals,
@@ -131,7 +133,8 @@ class Problem:
                  fix: Mapping[str, float | None] | Iterable[str] = (), denoise: bool | str = "auto",
                  sample_range: tuple[int | None, int | None] | None = None,
                  weights: Mapping[str, float] | None = None, skip: int = 0,
-                 free: Iterable[str] = (), segmentations: Sequence[Segmentation] | None = None):
+                 free: Iterable[str] = (), exclude: Sequence[tuple[int, int]] = (),
+                 segmentations: Sequence[Segmentation] | None = None):
         if not logs:
             raise InputError(None, "logs", "none given", "name at least one CSV log")
         free = set(free)
@@ -194,7 +197,7 @@ class Problem:
             {c: max(channel_noise(p), _PRESSURE_NOISE_FLOOR)
              for c, p in (("a", log.pressure_a), ("b", log.pressure_b)) if p is not None}
             for log in self.logs]
-        self.sample_weights = [self._weights(log, seg, sample_range, weights, skip)
+        self.sample_weights = [self._weights(log, seg, sample_range, weights, skip, exclude)
                                for log, seg in zip(self.logs, self.segmentations)]
         self._groups = self._build_groups()
         self._compiled: dict[tuple, Callable] = {}
@@ -218,7 +221,7 @@ class Problem:
         return bool(denoise)
 
     @staticmethod
-    def _weights(log, seg, sample_range, weights, skip) -> np.ndarray:
+    def _weights(log, seg, sample_range, weights, skip, exclude) -> np.ndarray:
         n = len(log)
         w = np.ones(n)
         if sample_range is not None:
@@ -228,6 +231,17 @@ class Problem:
             w[~keep] = 0.0
         if skip:
             w[:skip] = 0.0
+        for item in exclude:
+            try:
+                start, stop = (int(v) for v in item)
+            except (TypeError, ValueError):
+                raise InputError(None, f"exclude {item!r}", "is not a (start, stop) pair of "
+                                 "sample indices", "give e.g. (1000, 2000)") from None
+            if not 0 <= start < stop:
+                raise InputError(None, f"exclude ({start}, {stop})", "is not a range of "
+                                 "sample indices with 0 <= start < stop",
+                                 "give e.g. (1000, 2000)")
+            w[start:stop] = 0.0
         for region, factor in (weights or {}).items():
             if region not in REGIONS:
                 raise InputError(None, f"--weight {region}={factor}", "unknown region",

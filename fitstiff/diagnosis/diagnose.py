@@ -19,7 +19,7 @@ import dataclasses
 import itertools
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 
@@ -27,7 +27,7 @@ from fitstiff.diagnosis.gap import above_floor, pooled_excess, region_table
 from fitstiff.noise import noise_floor
 from fitstiff.diagnosis.result import Candidate, Diagnosis
 from fitstiff.diagnosis.screen import Score, collinear_groups, screen
-from fitstiff.diagnosis.select import folds_for, held_out
+from fitstiff.diagnosis.select import FoldFit, HeldOut, fold_starts, folds_for, held_out
 from fitstiff.diagnosis.supermodel import SuperProblem, candidate_names
 from fitstiff.errors import InputError
 from fitstiff.log import Log
@@ -93,11 +93,14 @@ def diagnose(logs: Sequence[Log], *, baseline: str = "chamber+dahl",
     clock["setup"] = time.perf_counter()
 
     active = list(sp.baseline_terms)
+    # the full-data fit screens, breaks ties and reports; the folds fit their own training
+    # parts from starts of their own (the fold rule, fitstiff.diagnosis.select)
     theta, hold = sp.start()
     theta, base_ok, _, _ = sp.solve(theta, hold, sp.model_mask(active), sp.nuisance_mask(),
                                     weights)
     hold = _maxwell_shape(sp, theta, hold, active)
-    current = held_out(sp, folds, theta, hold, active)
+    current = held_out(sp, folds, fold_starts(sp, folds), active)
+    fits = _fold_fits(sp, current, active)
     baseline_heldout = current
     clock["baseline"] = time.perf_counter()
 
@@ -118,37 +121,29 @@ def diagnose(logs: Sequence[Log], *, baseline: str = "chamber+dahl",
         # when none of the previous passed, so no significant candidate stays untried
         promising = sorted((s for s in scores if s.testable and s.p_value * m < alpha),
                            key=lambda s: s.log_p)
-        tried = {}
+        starts = _FoldStarts(sp, folds, fits, active, noise=noise, alpha=alpha)
+        tried: dict[str, _Tried] = {}
         for k, s in enumerate(promising):
-            if k and k % _MAX_REFITS == 0 and any(v[3] for v in tried.values()):
+            if k and k % _MAX_REFITS == 0 and any(v.passes for v in tried.values()):
                 break
             entries = sp.elements(s.effect, fitted=True)
-            theta_c, hold_c = _refit_start(sp, s, theta, hold, active, weights)
-            ho = held_out(sp, folds, theta_c, hold_c, active, extra=entries)
-            gap = current.rms_N - noise_pooled
-            shrink = (current.rms_N - ho.rms_N) / gap if gap > 0 else float("nan")
-            gain = current.rms_N - ho.rms_N
-            passes = (ho.converged and gain >= MIN_GAIN * noise_pooled
-                      and math.isfinite(shrink) and shrink >= min_shrink)
-            why = ("" if passes else "a refit did not converge" if not ho.converged
-                   else "held-out RMS did not fall" if gain <= 0
-                   else f"lowers the held-out RMS by only {gain:.2g} N (needs "
-                        f"{MIN_GAIN:.0%} of the noise floor, {MIN_GAIN * noise_pooled:.2g} N)"
-                   if gain < MIN_GAIN * noise_pooled
-                   else f"removes only {shrink:.0%} of the gap above the noise "
-                        f"(needs {min_shrink:.0%})")
-            tried[s.effect] = (s, ho, shrink, passes, why, theta_c, hold_c)
+            fold_start = starts.of(s.effect, batch=[t.effect for t in
+                                                    promising[k:k + _MAX_REFITS]])
+            ho = held_out(sp, folds, fold_start, active, extra=entries)
+            tried[s.effect] = _judge(s, ho, fold_start, current=current, noise=noise_pooled,
+                                     min_shrink=min_shrink)
         for s in scores:
             if s.effect in tried:
-                s_, ho, shrink, passes, why, _, _ = tried[s.effect]
+                t = tried[s.effect]
                 decided[s.effect] = Candidate(
                     effect=s.effect, score=s.statistic, dof=s.dof, p_value=s.p_value,
                     log_p_value=s.log_p,
                     testable=s.testable, heldout_rms_before_N=current.rms_N,
-                    heldout_rms_after_N=ho.rms_N, shrink=shrink, converged=ho.converged,
-                    regions_improved=_improved(sp, noise, masks, current, ho),
+                    heldout_rms_after_N=t.heldout.rms_N, shrink=t.shrink,
+                    converged=t.heldout.converged,
+                    regions_improved=_improved(sp, noise, masks, current, t.heldout),
                     parameters=_display(sp, s.one_step, "one_step"), round=round_,
-                    why=why)
+                    why=t.why)
             else:
                 why = (f"not testable: {s.reason}" if s.reason else
                        "significant, but a stronger candidate passed in this round (it is "
@@ -160,15 +155,16 @@ def diagnose(logs: Sequence[Log], *, baseline: str = "chamber+dahl",
                     log_p_value=s.log_p,
                     testable=s.testable, round=round_, why=why,
                     parameters=_display(sp, s.one_step, "one_step"))
-        passing = [v for v in tried.values() if v[3]]
+        passing = [v for v in tried.values() if v.passes]
         if passing:
-            chosen, theta, losers = _choose(sp, passing, active, weights, noise_pooled)
+            chosen, theta, hold, losers = _choose(sp, passing, theta, hold, active, weights,
+                                                  noise_pooled)
             for effect, why in losers.items():
                 decided[effect] = dataclasses.replace(decided[effect], why=why)
-            new, ho, hold = [chosen[0].effect], chosen[1], chosen[6]
+            new, ho = [chosen.effect], chosen.heldout
         else:
-            pair = _pair(sp, folds, tried, theta, hold, active, weights, current=current,
-                         noise=noise_pooled, min_shrink=min_shrink)
+            pair = _pair(sp, folds, tried, starts, theta, hold, active, weights,
+                         current=current, noise=noise_pooled, min_shrink=min_shrink)
             if pair is None:
                 break
             new, ho, shrink, theta_c, hold = pair
@@ -186,12 +182,10 @@ def diagnose(logs: Sequence[Log], *, baseline: str = "chamber+dahl",
             decided[effect] = dataclasses.replace(decided[effect], accepted=True, why="",
                                                   parameters=_display(sp, values, "fit"))
             accepted.append(effect)
-        # the next round compares against the accepted model at its best: its folds restarted
-        # from the full-data fit often end lower than the refit's (started at the one-step
-        # values); a stale "before" let a second effect claim the first one's unfinished part
-        # (the stribeck set accepted time_delay for 99 % of a gap that stribeck itself closes)
-        again = held_out(sp, folds, theta, hold, active)
-        current = again if again.converged and again.rms_N < ho.rms_N else ho
+        # the accepted model's held-out figure is its refit's, and each fold goes on from its
+        # own training fit of it: never a figure chosen by its held-out value
+        current = ho
+        fits = _fold_fits(sp, current, active)
     clock["select"] = time.perf_counter()
 
     base_table = region_table(baseline_heldout.residuals, problem.segmentations, noise, masks)
@@ -230,8 +224,92 @@ def diagnose(logs: Sequence[Log], *, baseline: str = "chamber+dahl",
         heldout={"before": baseline_heldout.residuals, "after": current.residuals})
 
 
-def _choose(sp: SuperProblem, passing, active, weights, noise: float):
-    """The passing candidate to accept, its fit on all data, and why each tied one lost.
+@dataclasses.dataclass(frozen=True)
+class _Tried:
+    """A refitted candidate: its screen, held-out refit, the rule's verdict and the fold
+    starts its refit used."""
+
+    score: Score
+    heldout: HeldOut
+    shrink: float
+    passes: bool
+    why: str
+    starts: tuple[FoldFit, ...]
+
+    @property
+    def effect(self) -> str:
+        return self.score.effect
+
+
+def _judge(s: Score, ho: HeldOut, starts, *, current: HeldOut, noise: float,
+           min_shrink: float) -> _Tried:
+    """The acceptance rule (:mod:`fitstiff.diagnosis.select`) on one held-out refit."""
+    gap = current.rms_N - noise
+    shrink = (current.rms_N - ho.rms_N) / gap if gap > 0 else float("nan")
+    gain = current.rms_N - ho.rms_N
+    passes = (ho.converged and gain >= MIN_GAIN * noise
+              and math.isfinite(shrink) and shrink >= min_shrink)
+    why = ("" if passes else "a refit did not converge" if not ho.converged
+           else "held-out RMS did not fall" if gain <= 0
+           else f"lowers the held-out RMS by only {gain:.2g} N (needs "
+                f"{MIN_GAIN:.0%} of the noise floor, {MIN_GAIN * noise:.2g} N)"
+           if gain < MIN_GAIN * noise
+           else f"removes only {shrink:.0%} of the gap above the noise "
+                f"(needs {min_shrink:.0%})")
+    return _Tried(s, ho, shrink, passes, why, tuple(starts))
+
+
+class _FoldStarts:
+    """Where each fold's refit of a candidate starts: the fold's fit of the current model with
+    the candidate's one-step values from the score screen on the fold's training data
+    (:func:`_refit_start` with the fold's weights). The screens run once per fold for a batch
+    of candidates, when the first of them is refitted."""
+
+    def __init__(self, sp: SuperProblem, folds, fits, active, *, noise, alpha):
+        self.sp, self.folds, self.fits, self.active = sp, folds, fits, list(active)
+        self.noise, self.alpha = noise, alpha
+        self.scores: list[dict[str, Score]] = [{} for _ in folds]
+        self.holds = [f.hold for f in fits]
+
+    def score(self, k: int, effect: str, batch: Sequence[str] = ()) -> Score:
+        """The candidate's screen on fold ``k``'s training data (with ``batch``, once)."""
+        if effect not in self.scores[k]:
+            wanted = [e for e in dict.fromkeys([effect, *batch]) if e not in self.scores[k]]
+            fit = self.fits[k]
+            found, self.holds[k] = screen(
+                self.sp, fit.theta, self.holds[k], active=self.active, candidates=wanted,
+                noise=self.noise, weights=self.folds[k].training(self.sp), alpha=self.alpha,
+                min_gain=MIN_GAIN)
+            self.scores[k].update({s.effect: s for s in found})
+        return self.scores[k][effect]
+
+    def of(self, effect: str, *, batch: Sequence[str] = (),
+           on: Sequence[FoldFit] | None = None) -> list[FoldFit]:
+        """Every fold's start for ``effect`` on top of the current model's fold fits, or on
+        top of ``on`` (a partner's refit starts, for a pair)."""
+        out = []
+        for k, fold in enumerate(self.folds):
+            s = self.score(k, effect, batch)
+            base = (on[k] if on is not None
+                    else FoldFit(self.fits[k].theta, self.holds[k]))
+            if not s.testable:         # nothing to step along on this fold: from the null
+                out.append(base)
+                continue
+            out.append(FoldFit(*_refit_start(self.sp, s, base.theta, base.hold, self.active,
+                                             fold.training(self.sp))))
+        return out
+
+
+def _fold_fits(sp: SuperProblem, ho: HeldOut, active) -> list[FoldFit]:
+    """The folds' training fits of the current model, Maxwell-slip's shape from each fold's
+    own fit."""
+    return [FoldFit(f.theta, _maxwell_shape(sp, f.theta, f.hold, active)) for f in ho.fits]
+
+
+def _choose(sp: SuperProblem, passing: Sequence[_Tried], theta, hold, active, weights,
+            noise: float):
+    """The passing candidate to accept, the full-data fit with it ``(theta, hold)``, and why
+    each tied one lost.
 
     The lowest held-out RMS wins, unless other candidates come within ``_TIE`` of the noise
     floor of it: their held-out predictions are then the same to well below the noise (leakage
@@ -239,52 +317,57 @@ def _choose(sp: SuperProblem, passing, active, weights, noise: float):
     candidates are told apart by their fits to all the data (:func:`_full_fit`, BIC). Each
     tied candidate costs one more solve on all data.
     """
-    best = min(passing, key=lambda v: v[1].rms_N)
-    tied = [v for v in passing if v[1].rms_N - best[1].rms_N <= _TIE * noise]
-    if len(tied) == 1:
-        theta, _, _ = _full_fit(sp, best[0], best[5], best[6], active, weights)
-        return best, theta, {}
-    fits = {v[0].effect: _full_fit(sp, v[0], v[5], v[6], active, weights) for v in tied}
-    chosen = min(tied, key=lambda v: fits[v[0].effect][2])
-    if not math.isfinite(fits[chosen[0].effect][2]):
+    best = min(passing, key=lambda v: v.heldout.rms_N)
+    tied = [v for v in passing if v.heldout.rms_N - best.heldout.rms_N <= _TIE * noise]
+    fits = {}
+    for v in tied:
+        theta_c, hold_c = _refit_start(sp, v.score, theta, hold, active, weights)
+        fits[v.effect] = (*_full_fit(sp, v.score, theta_c, hold_c, active, weights), hold_c)
+    chosen = min(tied, key=lambda v: fits[v.effect][2])
+    if not math.isfinite(fits[chosen.effect][2]):
         chosen = best
-    bic = fits[chosen[0].effect][2]
-    losers = {v[0].effect: (f"fits the held-out data as well as {chosen[0].effect} (RMS within "
-                            f"{_TIE:.0%} of the noise floor) but all the data worse: BIC "
-                            f"+{fits[v[0].effect][2] - bic:.3g}")
+    bic = fits[chosen.effect][2]
+    losers = {v.effect: (f"fits the held-out data as well as {chosen.effect} (RMS within "
+                         f"{_TIE:.0%} of the noise floor) but all the data worse: BIC "
+                         f"+{fits[v.effect][2] - bic:.3g}")
               for v in tied if v is not chosen}
-    return chosen, fits[chosen[0].effect][0], losers
+    return chosen, fits[chosen.effect][0], fits[chosen.effect][3], losers
 
 
-def _pair(sp: SuperProblem, folds, tried, theta, hold, active, weights, *, current,
-          noise: float, min_shrink: float):
+def _pair(sp: SuperProblem, folds, tried: Mapping[str, _Tried], starts: _FoldStarts, theta,
+          hold, active, weights, *, current: HeldOut, noise: float, min_shrink: float):
     """Two effects accepted together when none passes alone: ``(effects, held-out, shrink,
     theta, hold)`` of the best pair of the three strongest refitted candidates that passes
     the rule together and lowers the held-out RMS by ``MIN_GAIN`` of the noise below each
-    of its members alone, or None.
+    of its members alone, or None; ``theta, hold``: the full-data start of the pair.
 
     Two effects that are both missing can each fail alone, the other's misfit spoiling the
     refit's transfer to a left-out log: a rig compliance with dwell stiction (withheld pair
     set ``rig_compliance+dwell_stiction/1``) moved the held-out RMS from 0.68 to 0.71 N and
     0.62 N alone, to 0.39 N together. Each pair costs one held-out refit; the rule is the
-    single effects' rule, so an effect that adds nothing to its partner is not named."""
-    top = sorted((v for v in tried.values() if v[1].converged),
-                 key=lambda v: v[0].log_p)[:_MAX_REFITS]
+    single effects' rule, so an effect that adds nothing to its partner is not named. Each
+    fold starts from its own start of ``a`` with ``b``'s one-step values of that fold on top."""
+    top = sorted((v for v in tried.values() if v.heldout.converged),
+                 key=lambda v: v.score.log_p)[:_MAX_REFITS]
     best = None
     gap = current.rms_N - noise
     for a, b in itertools.combinations(top, 2):
-        # from a's refit start (kept in ``tried``), then b's on top of it
-        theta_c, hold_c = _refit_start(sp, b[0], a[5], a[6], active, weights)
-        extra = np.concatenate([sp.elements(a[0].effect, fitted=True),
-                                sp.elements(b[0].effect, fitted=True)])
-        ho = held_out(sp, folds, theta_c, hold_c, active, extra=extra)
+        fold_start = starts.of(b.effect, on=a.starts)
+        extra = np.concatenate([sp.elements(a.effect, fitted=True),
+                                sp.elements(b.effect, fitted=True)])
+        ho = held_out(sp, folds, fold_start, active, extra=extra)
         shrink = (current.rms_N - ho.rms_N) / gap if gap > 0 else float("nan")
         passes = (ho.converged and current.rms_N - ho.rms_N >= MIN_GAIN * noise
                   and math.isfinite(shrink) and shrink >= min_shrink
-                  and ho.rms_N <= min(a[1].rms_N, b[1].rms_N) - MIN_GAIN * noise)
+                  and ho.rms_N <= min(a.heldout.rms_N, b.heldout.rms_N) - MIN_GAIN * noise)
         if passes and (best is None or ho.rms_N < best[1].rms_N):
-            best = ([a[0].effect, b[0].effect], ho, shrink, theta_c, hold_c)
-    return best
+            best = (a, b, ho, shrink)
+    if best is None:
+        return None
+    a, b, ho, shrink = best
+    theta_a, hold_a = _refit_start(sp, a.score, theta, hold, active, weights)
+    theta_c, hold_c = _refit_start(sp, b.score, theta_a, hold_a, active, weights)
+    return [a.effect, b.effect], ho, shrink, theta_c, hold_c
 
 
 def _full_fit(sp: SuperProblem, s: Score, theta, hold, active, weights):

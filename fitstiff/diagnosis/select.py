@@ -18,6 +18,19 @@ none passes. Condition (1) bounds the false-alarm rate on data with no missing e
 ``alpha`` as long as the AR(1) noise model holds; (4) keeps a partial mimic of an effect
 outside the library from being named. Both thresholds are measured in the withheld-effect
 benchmark (``benchmarks/withheld.py``).
+
+**The fold rule.** No fold ever starts from, or is tuned by, anything fitted on its held-out
+part. Each fold carries its own fit (:class:`FoldFit`) from round to round: the baseline's
+starts from :meth:`~fitstiff.diagnosis.supermodel.SuperProblem.start` on the fold's training
+samples alone; a candidate's refit starts from the fold's fit of the current model with the
+candidate's one-step values computed on the fold's training data (the score screen with the
+fold's weights); an accepted effect's fold fits become the next round's starts. The full-data
+fit only screens, breaks ties (BIC) and reports the parameters. A fold's solve is checked with
+the tolerances of a cold fit. A left-out log's own nuisances (force offset, initial friction
+state) are fitted to it alone with the trained model held, and start from that log's own data.
+Before this rule, folds restarted from full-data fits, whose solves could stop on a flat
+direction with the held-out data's imprint (issue 31: second-round "held-out" RMS equal to the
+in-sample fit's to three digits).
 """
 
 from __future__ import annotations
@@ -33,7 +46,7 @@ import numpy as np
 from fitstiff.diagnosis.supermodel import SuperProblem
 from fitstiff.errors import InputError
 
-__all__ = ["Fold", "HeldOut", "folds_for", "held_out"]
+__all__ = ["Fold", "FoldFit", "HeldOut", "fold_starts", "folds_for", "held_out"]
 
 MAX_LOOP_FOLDS = 4
 _WORKERS = min(2, os.cpu_count() or 1)
@@ -52,6 +65,40 @@ class Fold:
         i, mask = self.samples
         idx = np.flatnonzero(mask)
         return f"leave out samples {idx[0]}-{idx[-1]} of log {names[i]}"
+
+    def training(self, sp: SuperProblem) -> np.ndarray:
+        """Run-time weights of the residual entries the fold trains on (its held-out part 0)."""
+        if self.log is not None:
+            return sp.entry_weights(logs=[i for i in range(sp.problem.n_logs) if i != self.log])
+        i, mask = self.samples
+        return sp.entry_weights(samples={i: ~mask})
+
+    def seen(self, n_samples: Sequence[int]) -> list[np.ndarray | None]:
+        """Per log, the samples the training part holds (``None``: the left-out log), for
+        :func:`~fitstiff.fitting.initial_guess`."""
+        out: list[np.ndarray | None] = [np.ones(n, dtype=bool) for n in n_samples]
+        if self.log is not None:
+            out[self.log] = None
+        else:
+            i, mask = self.samples
+            out[i] = ~np.asarray(mask)
+        return out
+
+
+@dataclasses.dataclass(frozen=True)
+class FoldFit:
+    """A fold's model fitted to its training part: ``theta`` (its left-out log's nuisances
+    as they were at the start: never fitted to that log here) and ``hold`` (physical values of
+    the model entries that are not free)."""
+
+    theta: np.ndarray
+    hold: np.ndarray
+
+
+def fold_starts(sp: SuperProblem, folds: Sequence[Fold]) -> list[FoldFit]:
+    """The baseline's start of every fold, from the fold's training samples alone."""
+    n = [len(log) for log in sp.problem.logs]
+    return [FoldFit(*sp.start(samples=f.seen(n))) for f in folds]
 
 
 def folds_for(sp: SuperProblem) -> list[Fold]:
@@ -80,51 +127,57 @@ def folds_for(sp: SuperProblem) -> list[Fold]:
 
 @dataclasses.dataclass(frozen=True)
 class HeldOut:
-    """Held-out predictions of one model: per log, model - measured force at every sample."""
+    """Held-out predictions of one model: per log, model - measured force at every sample;
+    ``fits``: each fold's training fit (where the next round's folds start)."""
 
     residuals: tuple[np.ndarray, ...]
     rms_N: float
     rms_per_log_N: tuple[float, ...]
     converged: bool
     steps: int
+    fits: tuple[FoldFit, ...] = ()
 
 
-def held_out(sp: SuperProblem, folds: Sequence[Fold], theta: np.ndarray, hold: np.ndarray,
+def held_out(sp: SuperProblem, folds: Sequence[Fold], starts: Sequence[FoldFit],
              active: Sequence[str], *, extra: np.ndarray = np.zeros(0, int)) -> HeldOut:
     """Held-out residuals of the model made of the ``active`` terms (plus the model entries
-    ``extra``), starting every fold from ``(theta, hold)``."""
+    ``extra``), every fold from its own start (``starts``, one per fold: see the fold rule in
+    the module docstring)."""
     p = sp.problem
+    if len(starts) != len(folds):
+        raise ValueError(f"held_out: {len(starts)} starts for {len(folds)} folds")
     free_model = sp.model_mask(active)
     free_model[extra] = True
     none = np.zeros(sp.n_model, dtype=bool)
 
-    def one(fold: Fold):
-        """``(log, sample mask or None, residual, converged, steps)`` of one fold."""
+    def one(fold: Fold, start: FoldFit):
+        """``(log, sample mask or None, residual, converged, steps, fit)`` of one fold."""
+        weights = fold.training(sp)
         if fold.log is not None:
             others = [i for i in range(p.n_logs) if i != fold.log]
-            th, ok1, s1, _ = sp.solve(theta, hold, free_model, sp.nuisance_mask(others),
-                                      sp.entry_weights(logs=others))
+            th, ok1, s1, _ = sp.solve(start.theta, start.hold, free_model,
+                                      sp.nuisance_mask(others), weights)
             # the trained model held (in physical values), only the log's nuisances fitted
-            x = np.asarray(sp.physical(th, hold, free_model))
-            th, ok2, s2, _ = sp.solve(th, x, none, sp.nuisance_mask([fold.log]),
-                                      sp.entry_weights(logs=[fold.log]))
-            force = sp.forces(x, th)[fold.log]
+            x = np.asarray(sp.physical(th, start.hold, free_model))
+            th_out, ok2, s2, _ = sp.solve(th, x, none, sp.nuisance_mask([fold.log]),
+                                          sp.entry_weights(logs=[fold.log]))
+            force = sp.forces(x, th_out)[fold.log]
             return (fold.log, None, force - np.asarray(p.logs[fold.log].force), ok1 and ok2,
-                    s1 + s2)
+                    s1 + s2, FoldFit(th, x))
         i, mask = fold.samples
-        th, ok, s1, _ = sp.solve(theta, hold, free_model, sp.nuisance_mask(),
-                                 sp.entry_weights(samples={i: ~mask}))
-        x = np.asarray(sp.physical(th, hold, free_model))
+        th, ok, s1, _ = sp.solve(start.theta, start.hold, free_model, sp.nuisance_mask(),
+                                 weights)
+        x = np.asarray(sp.physical(th, start.hold, free_model))
         force = sp.forces(x, th)[i]
-        return i, mask, force - np.asarray(p.logs[i].force), ok, s1
+        return i, mask, force - np.asarray(p.logs[i].force), ok, s1, FoldFit(th, x)
 
     # the folds are independent: two at a time on two cores (the compiled scan runs on one
     # core and releases the GIL); the results do not depend on the order
     with ThreadPoolExecutor(max_workers=_WORKERS) as pool:
-        done = list(pool.map(one, folds))
+        done = list(pool.map(one, folds, starts))
     residuals = [np.zeros(len(log)) for log in p.logs]
     converged, steps = True, 0
-    for i, mask, res, ok, s in done:
+    for i, mask, res, ok, s, _ in done:
         if mask is None:
             residuals[i] = res
         else:
@@ -139,4 +192,4 @@ def held_out(sp: SuperProblem, folds: Sequence[Fold], theta: np.ndarray, hold: n
         count += r.size
         per_log.append(math.sqrt(float(r @ r) / max(r.size, 1)))
     return HeldOut(tuple(residuals), math.sqrt(sq / max(count, 1)), tuple(per_log),
-                   bool(converged), steps)
+                   bool(converged), steps, tuple(d[5] for d in done))

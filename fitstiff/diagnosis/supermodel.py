@@ -234,10 +234,14 @@ class SuperProblem:
         return w
 
     # -- starting point -----------------------------------------------------------------------
-    def start(self, values: Mapping[str, float] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    def start(self, values: Mapping[str, float] | None = None, *,
+              samples: Sequence[np.ndarray | None] | None = None
+              ) -> tuple[np.ndarray, np.ndarray]:
         """``(theta, hold)``: the data-driven start of the baseline, candidates at their null
-        (shape parameters at their defaults) and ``values`` (SI, by flat name) on top."""
-        model0, nuis0 = initial_guess(self.problem, bases=self.baseline_terms)
+        (shape parameters at their defaults) and ``values`` (SI, by flat name) on top;
+        ``samples``: what may inform it (a fold's training part, see
+        :func:`~fitstiff.fitting.initial_guess`)."""
+        model0, nuis0 = initial_guess(self.problem, bases=self.baseline_terms, samples=samples)
         theta = np.array(self.problem.pack(model0, nuis0), dtype=float)
         hold = np.array(self.problem.par.physical(jnp.asarray(theta[:self.n_model])))
         for k, o in enumerate(self.owners):
