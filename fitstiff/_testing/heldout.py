@@ -5,11 +5,13 @@ Nothing here shares code with :mod:`fitstiff.diagnosis`: no super-model, no mask
 starts. Leave one log out is :func:`fitstiff.comparison.held_out_rms` (``fit`` on the other
 logs; the left-out log predicted with the model held and only its own nuisances fitted).
 Leave one block out is ``fit`` of the one log with the block excluded (``exclude=``), the
-block predicted by the fitted model.
+block predicted by the fitted model; the block that starts the log has its initial friction
+state fitted to it (the model and the trained offset held), as a left-out log has.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import re
 from collections.abc import Sequence
@@ -19,6 +21,7 @@ import numpy as np
 from fitstiff.comparison import held_out_rms
 from fitstiff.fitting import fit
 from fitstiff.log import Log
+from fitstiff.params import named_params
 
 __all__ = ["leave_one_log_out", "leave_one_block_out", "blocks_of", "pooled"]
 
@@ -37,6 +40,15 @@ def leave_one_block_out(log: Log, spec: str, blocks: Sequence[tuple[int, int]],
     for start, stop in blocks:
         result = fit([log], spec, exclude=[(start, stop)], **fit_kw)
         predicted = result.problem.per_log(result.theta)[0]["force"]
+        if start == 0 and "friction_state0" in result.problem.nuisance_names:
+            # the first block owns the initial friction state (the rest of the log does not
+            # inform it): fitted to the block with the model and the trained offset held
+            offset = float(result.per_log[0]["offset_N"])
+            shifted = dataclasses.replace(log, force=force - offset)
+            held = [n for _, _, names in named_params(result.model) for n in names]
+            own = fit([shifted], result.model, fix=[*held, "offset"],
+                      sample_range=(start, stop), **fit_kw)
+            predicted = own.problem.per_log(own.theta)[0]["force"] + offset
         residual[start:stop] = predicted[start:stop] - force[start:stop]
     return residual
 

@@ -27,7 +27,9 @@ candidate's one-step values computed on the fold's training data (the score scre
 fold's weights); an accepted effect's fold fits become the next round's starts. The full-data
 fit only screens, breaks ties (BIC) and reports the parameters. A fold's solve is checked with
 the tolerances of a cold fit. A left-out log's own nuisances (force offset, initial friction
-state) are fitted to it alone with the trained model held, and start from that log's own data.
+state) are fitted to it alone with the trained model held, and start from that log's own data;
+a held-out block that starts its log owns the log's initial friction state the same way (the
+rest of the log does not inform it), the offset stays the training part's.
 Before this rule, folds restarted from full-data fits, whose solves could stop on a flat
 direction with the held-out data's imprint (issue 31: second-round "held-out" RMS equal to the
 in-sample fit's to three digits).
@@ -49,6 +51,8 @@ from fitstiff.errors import InputError
 __all__ = ["Fold", "FoldFit", "HeldOut", "fold_starts", "folds_for", "held_out"]
 
 MAX_LOOP_FOLDS = 4
+#: the nuisances a held-out block that starts a log owns (fitted to the block alone)
+_BLOCK_OWN = ("friction_state0",)
 _WORKERS = min(2, os.cpu_count() or 1)
 
 
@@ -165,11 +169,19 @@ def held_out(sp: SuperProblem, folds: Sequence[Fold], starts: Sequence[FoldFit],
             return (fold.log, None, force - np.asarray(p.logs[fold.log].force), ok1 and ok2,
                     s1 + s2, FoldFit(th, x))
         i, mask = fold.samples
-        th, ok, s1, _ = sp.solve(start.theta, start.hold, free_model, sp.nuisance_mask(),
-                                 weights)
+        # a block that holds the log's first sample owns its initial friction state (the
+        # rest of the log does not inform it): fitted to the block alone, as a left-out
+        # log's nuisances are
+        own = (sp.nuisance_mask([i], names=_BLOCK_OWN) if mask[0]
+               else np.zeros(sp.size - sp.n_model, dtype=bool))
+        th, ok, s1, _ = sp.solve(start.theta, start.hold, free_model,
+                                 sp.nuisance_mask() & ~own, weights)
         x = np.asarray(sp.physical(th, start.hold, free_model))
-        force = sp.forces(x, th)[i]
-        return i, mask, force - np.asarray(p.logs[i].force), ok, s1, FoldFit(th, x)
+        th_out, ok2, s2 = th, True, 0
+        if own.any():
+            th_out, ok2, s2, _ = sp.solve(th, x, none, own, sp.entry_weights(samples={i: mask}))
+        force = sp.forces(x, th_out)[i]
+        return i, mask, force - np.asarray(p.logs[i].force), ok and ok2, s1 + s2, FoldFit(th, x)
 
     # the folds are independent: two at a time on two cores (the compiled scan runs on one
     # core and releases the GIL); the results do not depend on the order

@@ -207,11 +207,15 @@ class SuperProblem:
                          and (tested is None or o.tested == tested)
                          and not (fitted and o.fixed)], dtype=int)
 
-    def nuisance_mask(self, logs: Sequence[int] | None = None) -> np.ndarray:
-        """Nuisance entries of ``logs`` (indices; all logs by default)."""
+    def nuisance_mask(self, logs: Sequence[int] | None = None, *,
+                      names: Sequence[str] | None = None) -> np.ndarray:
+        """Nuisance entries of ``logs`` (indices; all logs by default), of the nuisances
+        ``names`` (all by default)."""
         p = self.problem
         keep = np.zeros(self.size - self.n_model, dtype=bool)
-        for j, _ in enumerate(p.nuisance_names):
+        for j, name in enumerate(p.nuisance_names):
+            if names is not None and name not in names:
+                continue
             for i in range(p.n_logs):
                 if logs is None or i in logs:
                     keep[j * p.n_logs + i] = True
