@@ -18,10 +18,12 @@ from fitstiff.errors import InputError
 from fitstiff.fitting import FitResult, fit, fit_problem
 from fitstiff.log import Log
 from fitstiff.model import Model
+from fitstiff.noise import noise_floor
 from fitstiff.params import named_params
 from fitstiff.problem import PROBLEM_OPTIONS, Problem
 
-__all__ = ["Comparison", "check_specs", "compare", "held_out_rms", "predict_held_out"]
+__all__ = ["Comparison", "check_specs", "compare", "held_out_rms", "pooled_noise", "predict_held_out",
+           "rank_held_out", "TIE"]
 
 
 def predict_held_out(log: Log, model: Model, **problem_kw) -> tuple[float, FitResult]:
@@ -85,7 +87,8 @@ def check_specs(logs: Sequence[Log], specs: Sequence[str], **fit_kw) -> None:
 
 def compare(logs: Sequence[Log], specs: Sequence[str], **fit_kw) -> tuple[Comparison,
                                                                            list[FitResult]]:
-    """Fit every spec to ``logs``; rank by held-out RMS (two logs or more), else by BIC.
+    """Fit every spec to ``logs``; rank by held-out RMS (two logs or more; near-ties by
+    identifiability, then BIC: :func:`rank_held_out`), else by BIC.
     Every spec is checked on the logs first (:func:`check_specs`). Each row holds the spec
     as given (``spec``, e.g. ``maxwell_slip:4``), the built model's spec (``model``), the
     fit's numbers and its ``parameters`` and ``derived`` values as in ``fit.json``."""
@@ -102,6 +105,48 @@ def compare(logs: Sequence[Log], specs: Sequence[str], **fit_kw) -> tuple[Compar
                                        if held else None),
                      "heldout_rms_per_log_N": held, "converged": result.converged,
                      "parameters": summary["parameters"], "derived": summary["derived"]})
-    key = "heldout_rms_N" if len(logs) >= 2 else "bic"
-    order = sorted(range(len(rows)), key=lambda i: rows[i][key])
+    if len(logs) >= 2:
+        key = "heldout_rms_N"
+        tie = TIE * pooled_noise(logs)
+        order = rank_held_out([r["heldout_rms_N"] for r in rows], [r["bic"] for r in rows],
+                              [res.identifiability.identifiable for res in results], tie=tie)
+    else:
+        key = "bic"
+        order = sorted(range(len(rows)), key=lambda i: rows[i][key])
+    for i in range(len(rows)):
+        rows[i]["identifiable"] = bool(results[i].identifiability.identifiable)
     return (Comparison(tuple(rows[i] for i in order), key), [results[i] for i in order])
+
+
+#: held-out RMS values within this share of the logs' noise floor are a tie (the diagnosis'
+#: rule, :data:`fitstiff.diagnosis.diagnose._TIE`): broken by identifiability, then BIC
+TIE = 0.01
+
+
+def pooled_noise(logs: Sequence[Log]) -> float:
+    """The logs' force noise floor (N), pooled over their samples (:func:`noise_floor`)."""
+    counts = np.array([len(log) for log in logs], dtype=float)
+    sigmas = np.array([noise_floor(np.asarray(log.force)).sigma for log in logs])
+    return math.sqrt(float(np.sum(counts * sigmas**2) / counts.sum()))
+
+
+def rank_held_out(heldout: Sequence[float], bic: Sequence[float],
+                  identifiable: Sequence[bool], *, tie: float) -> list[int]:
+    """Indices best first: by held-out RMS, except that models within ``tie`` (N) of each
+    other are ranked identifiable first, then by BIC. A model that beats another by more
+    than ``tie`` held out ranks above it whatever else; so an unidentifiable model never
+    ranks above an identifiable one it does not beat clearly."""
+    def before(i: int, j: int) -> bool:
+        if abs(heldout[i] - heldout[j]) > tie:
+            return heldout[i] < heldout[j]
+        if bool(identifiable[i]) != bool(identifiable[j]):
+            return bool(identifiable[i])
+        return bic[i] < bic[j]
+
+    order: list[int] = []
+    for i in sorted(range(len(heldout)), key=lambda i: heldout[i]):
+        at = len(order)
+        while at > 0 and before(i, order[at - 1]):
+            at -= 1
+        order.insert(at, i)
+    return order

@@ -722,7 +722,9 @@ def _diagnosis_tables(result) -> str:
     skipped = [f"{e}: {why}" for e, why in result.skipped.items()]
     return (table
             + _p("Score: the Lagrange-multiplier statistic of the effect at its null value "
-                 "(z squared, signed, for one-sided effects); p after the grid correction; "
+                 "(for one-sided effects z squared with the sign of z: negative where the data "
+                 "push the parameter below its null, i.e. away from the effect); p after the "
+                 "grid correction; "
                  "the screen's level is alpha / number of candidates = "
                  f"{result.settings.get('screen_level', float('nan')):.2g}. An effect is "
                  "accepted when its held-out RMS falls and it removes at least "

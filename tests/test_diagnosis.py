@@ -303,11 +303,14 @@ def test_chi2_log_tail_is_finite_and_exact_far_beyond_scipys_underflow(dof):
         assert np.isfinite(value) and value < chi2_logsf(x / 1.01, dof)   # still ordered
 
 
-def test_a_p_value_that_underflows_is_shown_by_its_power_of_ten():
+def test_a_p_value_below_1e_300_is_shown_as_such():
+    """Issue 31: "1e-3397" read as a figure; the exact tail stays in log_p_value."""
     from fitstiff.diagnosis.result import Candidate
 
     strong = Candidate("rig_compliance", 12599.1, 1, 0.0, True, log_p_value=-6304.5)
-    assert strong.p_text == "1e-2739"
+    assert strong.p_text == "< 1e-300"
+    assert Candidate("x", 1e3, 1, 1e-310, True, log_p_value=-713.8).p_text == "< 1e-300"
+    assert Candidate("x", 1e3, 1, 2e-300, True, log_p_value=-689.4).p_text == "2e-300"
     assert Candidate("stribeck", 9.0, 1, 0.012, True, log_p_value=np.log(0.012)).p_text == "0.012"
     # a diagnosis.json of an older fitstiff has no log_p_value: the stored p as it is
     assert Candidate.from_dict({"effect": "x", "score": 1e4, "dof": 1, "p_value": 0.0,

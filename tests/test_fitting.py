@@ -457,3 +457,17 @@ def test_fit_speed_benchmark_runs_small(tmp_path):
                              <= t["cold_in_reference_fits_at_most"])
     assert t["warm_met"] == (r["speedup_warm_vs_reference"] >= t["warm_speedup_at_least"])
     assert t["cold_in_reference_fits_at_most"] == pytest.approx(6.0 / 0.140)
+
+
+def test_held_out_near_ties_go_to_the_identifiable_model_then_bic():
+    """Issue 31: on the demo's logs LuGre led Dahl held out by 0.0004 N (noise 0.2 N) with
+    `identifiable: NO`; a near-tie (within 1 % of the noise) goes to the identifiable model,
+    then to BIC; a clear held-out lead wins whatever else."""
+    from fitstiff.comparison import rank_held_out
+
+    held, bic = [0.2008, 0.2004, 0.2300], [422.2, 426.9, 400.0]
+    assert rank_held_out(held, bic, [True, False, True], tie=0.002) == [0, 1, 2]
+    assert rank_held_out(held, bic, [True, True, True], tie=0.002) == [0, 1, 2]
+    assert rank_held_out(held, [430.0, 426.9, 400.0], [True, True, True], tie=0.002) == [1, 0, 2]
+    # a clear lead of an unidentifiable model stands
+    assert rank_held_out([0.25, 0.20], [1.0, 2.0], [True, False], tie=0.002) == [1, 0]

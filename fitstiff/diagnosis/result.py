@@ -39,11 +39,11 @@ class Candidate:
 
     @property
     def p_text(self) -> str:
-        """The p-value for reading: two digits, or its power of ten where it underflows to
-        0 (``1e-2739``, from :attr:`log_p_value`)."""
-        if self.p_value > 0 or not (math.isfinite(self.log_p_value) and self.log_p_value < 0):
-            return f"{self.p_value:.2g}"
-        return f"1e{math.floor(self.log_p_value / math.log(10.0)):d}"
+        """The p-value for reading: two digits, or ``< 1e-300`` below that (the screen's
+        tail is exact there, but no decision turns on it; :attr:`log_p_value` keeps it)."""
+        if self.p_value < 1e-300 and (self.p_value > 0 or self.log_p_value < 0):
+            return "< 1e-300"
+        return f"{self.p_value:.2g}"
 
     def to_dict(self) -> dict[str, object]:
         out = dataclasses.asdict(self)
