@@ -335,3 +335,24 @@ def test_collinear_groups_join_candidates_the_screen_cannot_order():
     groups = collinear_groups(scores)
     assert [[s.effect for s in g] for g in groups] == [["heat_transfer", "leakage"]]
     assert collinear_groups(scores, threshold=0.95)[0][-1].effect == "inertia"
+
+
+def test_a_detectable_size_beyond_the_parameters_range_is_not_testable():
+    """Issue 31: "Stribeck ratio >= 50.9" (the term ends at 5) and "pressure_friction
+    testable >= 9.6 /bar" on one pressure meant nothing: beyond the range, the candidate is
+    not testable on these logs, with what to record instead."""
+    import importlib
+    from types import SimpleNamespace
+
+    from fitstiff.terms import TERMS
+
+    module = importlib.import_module("fitstiff.diagnosis.diagnose")
+    ratio = next(p for p in TERMS["stribeck"]().params() if p.field == "stribeck_ratio")
+    score = SimpleNamespace(effect="stribeck", testable=True, param=ratio, detectable=49.9,
+                            parameter="stribeck_ratio", reason=None)
+    far = module._detectability(score)
+    assert far["testable"] is False and "beyond the term's range (4)" in far["reason"]
+    assert far["record"] == TERMS["stribeck"].excitation
+    near = module._detectability(SimpleNamespace(**{**vars(score), "detectable": 0.5}))
+    assert near == {"testable": True, "parameter": "stribeck_ratio", "size": 0.5, "unit": "-",
+                    "power": 0.8}
