@@ -67,7 +67,9 @@ class Comparison:
             lines.append(f"{r['spec']:<36}{r['n_params']:>7}{r['rms_N']:>10.4g}"
                          f"{r['aic']:>14.6g}{r['bic']:>14.6g}"
                          f"{'n/a' if held is None else f'{held:.4g}':>12}  {r['converged']}")
-        lines.append(f"ranked by {self.ranked_by}")
+        lines.append(f"ranked by {self.ranked_by}" + (
+            f" (values within {TIE:.0%} of the logs' noise floor are a tie: identifiable "
+            "first, then BIC)" if self.ranked_by == "heldout_rms_N" else ""))
         return "\n".join(lines)
 
 
