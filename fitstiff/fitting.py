@@ -221,6 +221,11 @@ class FitResult:
             err = "fixed" if p.get("fixed") else ("n/d" if p["stderr"] is None
                                                  else f"{p['stderr']:.4g}")
             lines.append(f"  {name:<22}{p['value']:>14.6g}{err:>12}  {p['unit']}")
+        if self.model.has("pressure_friction"):
+            p_ref = self.model.term("pressure_friction").p_ref / 1e5
+            lines.append(f"  (friction levels such as Fc apply at p_ref = {p_ref:.3g} bar gauge, "
+                         "the mean seal pressure of these logs; beta is per bar of the mean "
+                         "of the two chamber pressures)")
         lines.append(f"  {'derived':<22}")
         for name, (v, e) in self.derived.items():
             label, unit = split_unit(name)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 
@@ -471,3 +472,16 @@ def test_held_out_near_ties_go_to_the_identifiable_model_then_bic():
     assert rank_held_out(held, [430.0, 426.9, 400.0], [True, True, True], tie=0.002) == [1, 0, 2]
     # a clear lead of an unidentifiable model stands
     assert rank_held_out([0.25, 0.20], [1.0, 2.0], [True, False], tie=0.002) == [1, 0]
+
+
+def test_the_table_states_the_reference_pressure_of_pressure_friction():
+    """Issue 31: Fc with pressure_friction is the level at p_ref, printed nowhere before."""
+    rig = Rig.from_mapping({"bore_mm": 32, "stroke_mm": 700, "start_position_mm": 350,
+                            "supply_bar": 4})
+    logs = [simulate("dahl", TriangleCycles(rate_mm_s=5.0, amplitudes_mm=(0.5, 1.0)),
+                     rig=dataclasses.replace(rig, supply_pressure=bar * 1e5), seed=i,
+                     rate_hz=500, noise=Noise(force_N=0.1, displacement_um=0.0)).log
+            for i, bar in enumerate((2.0, 6.0))]
+    result = fit(logs, "dahl+pressure_friction")
+    assert "p_ref = 4 bar gauge" in result.table()
+    assert result.to_dict()["settings"]["pressure_friction"]["p_ref"] == pytest.approx(4e5)
