@@ -120,8 +120,9 @@ def compare(logs: Sequence[Log], specs: Sequence[str], **fit_kw) -> tuple[Compar
     return (Comparison(tuple(rows[i] for i in order), key), [results[i] for i in order])
 
 
-#: held-out RMS values within this share of the logs' noise floor are a tie (the diagnosis'
-#: rule, :data:`fitstiff.diagnosis.diagnose._TIE`): broken by identifiability, then BIC
+#: held-out RMS values within this share of the logs' noise floor are a tie, here and in the
+#: diagnosis (:func:`fitstiff.diagnosis.diagnose._choose`): broken by identifiability (here)
+#: or the fit to all the data (BIC)
 TIE = 0.01
 
 

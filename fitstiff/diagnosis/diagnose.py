@@ -23,6 +23,7 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
+from fitstiff.comparison import TIE
 from fitstiff.diagnosis.gap import above_floor, pooled_excess, region_table
 from fitstiff.noise import noise_floor
 from fitstiff.diagnosis.result import Candidate, Diagnosis
@@ -45,8 +46,8 @@ MIN_SHRINK = 0.3
 #: delay of -0.18 ms "removed 30 %" of a 7 mN gap left once stribeck was fitted)
 MIN_GAIN = 0.05
 #: passing candidates whose held-out RMS lies within this share of the noise floor of the best
-#: one's are told apart by their fits to all the data (:func:`_choose`)
-_TIE = 0.01
+#: one's are told apart by their fits to all the data (:func:`_choose`; compare's rule too)
+_TIE = TIE
 _MAX_REFITS = 3
 _MAX_ACCEPT = 4
 _IMPROVED = 0.95      # a region improved when its held-out RMS fell below 95 % of before
