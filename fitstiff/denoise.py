@@ -29,10 +29,27 @@ import numpy as np
 
 from fitstiff.noise import marginal_scale
 
-__all__ = ["denoise_displacement", "reversal_samples", "segment_velocity", "smooth_acceleration",
+__all__ = ["chatters", "denoise_displacement", "reversal_samples", "segment_velocity", "smooth_acceleration",
            "smooth_force", "turning_points"]
 
 _SEARCH = 3   # samples either side of a reversal index searched for the raw extremum
+
+
+def chatters(x: np.ndarray, reversals: np.ndarray) -> bool:
+    """Whether the displacement ``x`` turns where the segmentation finds no reversal: more
+    than twice as many changes of direction (between its non-zero steps) as genuine
+    ``reversals``, and at least 5 more.
+
+    The displacement-noise estimate (MAD of second differences) is zero on a quantised
+    encoder that stands still most of the time, yet a one-count toggle during a pause
+    restarts a rate-independent pre-sliding curve each time: over a 20 s pause at 500 Hz the
+    ratchet moved a Dahl force from 19 to 15 N (1.4 N RMS fit error on a log whose noise was
+    0.2 N, 0.20 N once denoised). A few extra turns at rounded corners stay below the bar."""
+    steps = np.diff(np.asarray(x, dtype=float))
+    steps = steps[steps != 0]
+    turns = int(np.count_nonzero(np.diff(np.sign(steps)))) if steps.size > 1 else 0
+    genuine = len(reversals)
+    return turns > 2 * genuine and turns >= genuine + 5
 
 
 def reversal_samples(x: np.ndarray, reversals: np.ndarray) -> np.ndarray:

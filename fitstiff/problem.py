@@ -30,8 +30,9 @@ import equinox as eqx
 import numpy as np
 
 from fitstiff._jax import jax, jnp
-from fitstiff.denoise import (denoise_displacement, reversal_samples, segment_velocity,
-                              smooth_acceleration, smooth_force, turning_points)
+from fitstiff.denoise import (chatters, denoise_displacement, reversal_samples,
+                              segment_velocity, smooth_acceleration, smooth_force,
+                              turning_points)
 from fitstiff.drive import Drive, drive_from_log
 from fitstiff.errors import InputError
 from fitstiff.guards import check_logs
@@ -112,7 +113,9 @@ class Problem:
             ``offset`` / ``friction_state0`` fix those for every log (at 0).
         denoise: replace each displacement by its reversal-preserving monotone estimate
             (:mod:`fitstiff.denoise`) before driving the model. ``"auto"``: when the
-            estimated displacement noise is above 0.05 um.
+            estimated displacement noise is above 0.05 um, or when the displacement turns
+            where the segmentation finds no reversal (:func:`~fitstiff.denoise.chatters`: a
+            quantised encoder toggling by one count during a pause).
         sample_range: ``(start, stop)`` sample indices used in every log (others weigh 0).
         weights: extra weight per segmentation region, e.g. ``{"presliding": 4.0}``.
         skip: samples at the start of every log that drive the model but weigh 0 (a warm-up
@@ -148,7 +151,8 @@ class Problem:
         spec = model if isinstance(model, str) else model.spec
         needs = model_needs(model)
         self.displacement_noise = [s.noise for s in self.segmentations]
-        self.denoised = [self._want_denoise(denoise, s) for s in self.segmentations]
+        self.denoised = [self._want_denoise(denoise, s, log.displacement)
+                         for log, s in zip(self.logs, self.segmentations)]
         self.drives: list[Drive] = []
         for log, seg, den in zip(self.logs, self.segmentations, self.denoised):
             drive = drive_from_log(log, needs_chamber=needs.chamber_geometry, still=seg.still,
@@ -215,9 +219,9 @@ class Problem:
 
     # -- set-up ---------------------------------------------------------------------------
     @staticmethod
-    def _want_denoise(denoise, seg: Segmentation) -> bool:
+    def _want_denoise(denoise, seg: Segmentation, displacement) -> bool:
         if denoise == "auto":
-            return seg.noise > 0.05e-6
+            return seg.noise > 0.05e-6 or chatters(displacement, seg.reversals)
         return bool(denoise)
 
     @staticmethod

@@ -52,14 +52,14 @@ def example_fit() -> Example:
 
     Triangle cycles of 0.2, 0.5 and 1 mm at 2 mm/s with 0.5 s pauses at the zero crossings,
     simulated as ``chamber+dahl+dwell_stiction`` and fitted as ``chamber+dahl``: the residuals
-    show the unmodelled extra breakaway after every pause (region ``dwell``).
+    show the unmodelled stiction peak after every pause (region ``dwell``).
     """
     rig = Rig.from_mapping({"bore_mm": 32, "rod_mm": 0, "stroke_mm": 700,
                             "start_position_mm": 350, "supply_bar": 6})
     program = TriangleCycles(amplitudes_mm=(0.2, 0.5, 1.0), rate_mm_s=2.0, pause_s=(0.5,),
                              pause_at="passes")
     sim = simulate("chamber+dahl+dwell_stiction", program, rig=rig, seed=11, rate_hz=100.0,
-                   params={"n": 1.4, "sigma0": 40, "Fc": 18, "dwell_gain": 0.4},
+                   params={"n": 1.4, "sigma0": 40, "Fc": 18, "dwell_gain": 7.0},
                    name="example")
     result = fit([sim.log], "chamber+dahl")
     predicted = result.problem.per_log(result.theta)[0]

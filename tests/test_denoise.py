@@ -118,3 +118,55 @@ def test_smooth_force_sheds_noise_and_keeps_a_presliding_corner():
     k = np.arange(-5, 6.0)
     design = np.stack([np.ones_like(k), k, k**2], axis=1)
     assert _value_noise(5, 1.0) == pytest.approx(np.sqrt(np.linalg.inv(design.T @ design)[0, 0]))
+
+
+def _paused_log(*, quantum: float, noise: float, seed: int = 0) -> Log:
+    """1 mm triangles at 1 mm/s, 500 Hz, with a 10 s pause at +0.5 mm; the displacement
+    quantised to ``quantum`` after ``noise`` (m)."""
+    t1, x1 = TriangleCycles(amplitudes_mm=(1.0,), rate_mm_s=1.0).sample(500.0)
+    k = int(np.argmin(np.abs(x1[: x1.size // 4] - 0.5e-3)))
+    x = np.concatenate([x1[:k], np.full(5000, x1[k]), x1[k:]])
+    t = np.arange(x.size) / 500.0
+    rng = np.random.default_rng(seed)
+    x = x + rng.normal(scale=noise, size=x.size)
+    if quantum:
+        x = np.round(x / quantum) * quantum
+    return Log(name="paused", displacement=x, force=np.zeros_like(x), time=t)
+
+
+def test_an_encoder_toggling_by_one_count_in_a_pause_chatters_and_is_denoised():
+    from fitstiff.denoise import chatters
+    from fitstiff.problem import Problem
+
+    toggling = _paused_log(quantum=1e-6, noise=0.2e-6)
+    seg = segment(toggling)
+    # the MAD of second differences is blind to it (most steps are zero) ...
+    assert seg.noise == 0.0
+    # ... but the displacement turns far more often than the genuine reversals
+    assert chatters(toggling.displacement, seg.reversals)
+    assert Problem([toggling], "dahl").denoised == [True]
+    # a clean (or clean and quantised) displacement does not chatter and is left as measured
+    for clean in (_paused_log(quantum=0.0, noise=0.0), _paused_log(quantum=1e-6, noise=0.0)):
+        seg = segment(clean)
+        assert not chatters(clean.displacement, seg.reversals)
+        assert Problem([clean], "dahl").denoised == [False]
+    # and denoise=False is obeyed
+    assert Problem([toggling], "dahl", denoise=False).denoised == [False]
+
+
+def test_a_denoised_pause_keeps_the_dahl_force_where_the_toggles_ratcheted_it():
+    from fitstiff.drive import drive_from_log
+    from fitstiff.model import build_model
+    from fitstiff.problem import Problem
+
+    log = _paused_log(quantum=1e-6, noise=0.2e-6)
+    still = segment(log).still
+    raw = build_model("dahl").predict(drive_from_log(log, still=still))
+    p = Problem([log], "dahl")
+    denoised = np.asarray(p.drives[0].displacement)
+    smooth = build_model("dahl").predict(p.drives[0])
+    pause = np.flatnonzero(still)
+    # over the pause the raw toggles walk the friction force down; the denoised drive holds it
+    assert float(raw[pause[0]] - raw[pause[-1]]) > 1.0
+    assert abs(float(smooth[pause[0]] - smooth[pause[-1]])) < 0.05
+    assert np.ptp(denoised[pause]) < 1e-6

@@ -356,3 +356,55 @@ def test_a_detectable_size_beyond_the_parameters_range_is_not_testable():
     near = module._detectability(SimpleNamespace(**{**vars(score), "detectable": 0.5}))
     assert near == {"testable": True, "parameter": "stribeck_ratio", "size": 0.5, "unit": "-",
                     "power": 0.8}
+
+
+@pytest.fixture(scope="module")
+def junction_logs():
+    from fitstiff._testing.independent import junction_dwell
+
+    return junction_dwell(small=True, rate_hz=250.0)
+
+
+def test_an_aged_junction_after_pauses_is_named_dwell_stiction(junction_logs):
+    # an independent simulator's junction (loads from the pause position, breaks at
+    # 4 N x ln(1 + pause / 0.5 s)); motion reverses after some pauses and continues after
+    # others; its rivals on such logs: a time delay (a steep force change) and Stribeck
+    from fitstiff.diagnosis import diagnose
+
+    d = diagnose(junction_logs, candidates="dwell_stiction,time_delay,stribeck")
+    assert d.accepted == ("dwell_stiction",), d.verdict
+    c = d.candidate("dwell_stiction")
+    assert c.shrink > 0.6 and c.log_p_value < np.log(1e-10)
+    fitted = {k: v["value"] for k, v in c.parameters.items()}
+    assert 0.2 < fitted["dwell_tau"] < 1.5          # s; the junction aged with tau = 0.5 s
+
+
+def test_an_accepted_effect_the_others_make_redundant_is_dropped(junction_logs):
+    # greedy acceptance can leave an earlier effect with nothing of its own once a later one
+    # is in; the backward check judges each as if it were added last
+    import importlib
+
+    from fitstiff.diagnosis.select import fold_starts, folds_for, held_out
+    from fitstiff.diagnosis.supermodel import SuperProblem
+
+    diag = importlib.import_module("fitstiff.diagnosis.diagnose")
+    sp = SuperProblem(junction_logs, "chamber+dahl", ["viscous", "dwell_stiction"])
+    folds = folds_for(sp)
+    base = ["chamber", "dahl"]
+    both = base + ["viscous", "dwell_stiction"]
+    extra = np.concatenate([sp.elements("viscous", fitted=True),
+                            sp.elements("dwell_stiction", fitted=True)])
+    current = held_out(sp, folds, fold_starts(sp, folds), base, extra=extra)
+    theta, hold = sp.start()
+    weights = sp.entry_weights()
+    noise = 0.2
+    _, _, _, active, dropped = diag._prune(sp, folds, [("viscous",), ("dwell_stiction",)],
+                                           current, theta, hold, both, weights, noise=noise,
+                                           min_shrink=0.3)
+    assert list(dropped) == [("viscous",)]
+    assert active == base + ["dwell_stiction"]
+    assert "dropped" in dropped[("viscous",)]
+    # a unit that carries its share stays, alone it is never judged
+    kept = diag._prune(sp, folds, [("dwell_stiction",)], current, theta, hold, both,
+                       weights, noise=noise, min_shrink=0.3)
+    assert kept[4] == {}

@@ -538,22 +538,56 @@ def test_pressure_friction_rises_with_pressure():
     assert levels[6.0] / levels[2.0] == pytest.approx(np.exp(0.05 * 4.0), rel=1e-4)
 
 
-def test_dwell_stiction_grows_with_standstill_duration():
-    peaks = []
+def _paused(first, second, pause):
+    """A leg ``first`` (m, two points), a standstill of ``pause`` s, a leg ``second``; the
+    standstill flag and the index where the second leg starts."""
+    t1, x1 = polyline(first)
+    t2, x2 = polyline(second)
+    n_pause = int(pause * 1000)
+    tp = t1[-1] + np.arange(1, n_pause + 1) * 1e-3
+    t = np.concatenate([t1, tp, (tp[-1:] if n_pause else t1[-1]) + t2[1:] + 1e-3 * bool(n_pause)])
+    x = np.concatenate([x1, np.full(n_pause, first[1]), x2[1:]])
+    still = np.concatenate([np.zeros_like(x1), np.ones(n_pause), np.zeros(len(x2) - 1)])
+    return t, x, still, len(x1) + n_pause
+
+
+_JUNCTION = {"dwell_gain": 2.0, "dwell_tau": 1.0, "dwell_decay": 0.1e-3}
+
+
+def test_dwell_stiction_peak_grows_with_log_of_the_standstill():
+    # motion continues after the pause: the Dahl branch plus a junction peak of
+    # gain ln(1 + t / tau) at dwell_decay of travel, released after a few decay lengths
+    values = {"sigma0": 40e3, "Fc": 18.0}
     for pause in (0.0, 0.5, 5.0):
-        t1, x1 = polyline([0.0, 2e-3])
-        t2, x2 = polyline([2e-3, 4e-3])
-        n_pause = int(pause * 1000)
-        tp = t1[-1] + np.arange(1, n_pause + 1) * 1e-3
-        t = np.concatenate([t1, tp, tp[-1:] + t2[1:] + 1e-3 if n_pause else t1[-1] + t2[1:]])
-        x = np.concatenate([x1, np.full(n_pause, 2e-3), x2[1:]])
-        still = np.concatenate([np.zeros_like(x1), np.ones(n_pause), np.zeros(len(x2) - 1)])
-        _, _, pred = run("dahl+dwell_stiction", t, x, still=still,
-                         values={"dwell_gain": 0.5, "dwell_tau": 1.0, "dwell_decay": 0.3e-3})
-        peaks.append(float(np.max(np.asarray(pred.force)[len(x1) + n_pause:])))
-    assert peaks[0] == pytest.approx(18.0, rel=1e-3)
-    assert peaks[0] < peaks[1] < peaks[2]
-    assert peaks[2] > 18.0 * 1.1
+        t, x, still, k = _paused([0.0, 2e-3], [2e-3, 4e-3], pause)
+        plain = np.asarray(run("dahl", t, x, still=still, values=values)[2].force)
+        aged = np.asarray(run("dahl+dwell_stiction", t, x, still=still,
+                              values=values | _JUNCTION)[2].force)
+        extra = aged - plain
+        assert np.array_equal(aged[:k], plain[:k])
+        assert float(np.max(extra)) == pytest.approx(2.0 * np.log1p(pause / 1.0), rel=1e-3)
+        peak = int(np.argmax(extra))
+        assert x[peak] - 2e-3 == pytest.approx(0.1e-3, abs=2e-6) if pause else True
+        assert abs(extra[-1]) < 1e-3 * max(extra.max(), 1.0)
+
+
+def test_dwell_stiction_makes_the_reversal_after_a_pause_stiffer_and_higher():
+    # motion reverses after the pause: the junction adds to the Dahl branch from +Fc to -Fc
+    t, x, still, k = _paused([0.0, 2e-3], [2e-3, 0.0], 5.0)
+    values = {"sigma0": 40e3, "Fc": 18.0}
+    plain = np.asarray(run("dahl", t, x, still=still, values=values)[2].force)
+    aged = np.asarray(run("dahl+dwell_stiction", t, x, still=still,
+                          values=values | _JUNCTION)[2].force)
+    assert np.array_equal(plain[:k], aged[:k])
+    travel = 2e-3 - x[k:]
+    near = (travel > 0) & (travel < 0.05e-3)
+    slope_plain = np.polyfit(travel[near], plain[k:][near], 1)[0]
+    slope_aged = np.polyfit(travel[near], aged[k:][near], 1)[0]
+    assert slope_aged < slope_plain < 0           # force falls faster: a stiffer branch
+    # the junction's full strength against the new direction at dwell_decay of travel
+    extra = aged - plain
+    assert float(extra.min()) == pytest.approx(-2.0 * np.log1p(5.0), rel=1e-3)
+    assert travel[int(np.argmin(extra[k:]))] == pytest.approx(0.1e-3, abs=2e-6)
 
 
 def test_heat_transfer_makes_stiffness_rate_dependent(paper_rig):

@@ -78,15 +78,34 @@ def test_time_delay_injection_makes_the_force_lag():
                                                                   plain["force"]), atol=0.05)
 
 
-def test_dwell_stiction_raises_the_breakaway_after_a_pause_only():
+def test_dwell_stiction_junction_peaks_after_a_pause_whichever_way_the_motion_goes():
+    # the pause at -1 mm: motion reverses (toward B) in one program, continues (toward A)
+    # in the other
+    for after, sign in ((6.0, 1.0), (-6.0, -1.0)):
+        program = rs.Program((rs.leg(1.0, 5.0), rs.leg(-1.0, 5.0), rs.pause(2.0),
+                              rs.leg(after, 5.0)))
+        plain = _clean({}, program=program)
+        dwell = _clean({"dwell_stiction": {"gain": 3.0, "tau": 0.5, "decay": 0.1e-3}},
+                       program=program)
+        diff = dwell["force"] - plain["force"]
+        t, x = plain["time"], plain["x_sensor"]
+        assert np.abs(diff[t < 0.55]).max() < 1e-9
+        # against the new motion, up to the strength gain ln(1 + t / tau), then released
+        strength = 3.0 * np.log1p(2.0 / 0.5)
+        peak = int(np.argmax(sign * diff))
+        assert sign * diff[peak] == pytest.approx(strength, rel=0.1)   # logged at 400 Hz
+        assert abs(abs(x[peak] - (-1e-3)) - 0.1e-3) < 0.02e-3
+        assert abs(diff[-1]) < 1e-3 * strength
+
+
+def test_dwell_stiction_level_kind_raises_the_level_after_a_pause_only():
     program = rs.Program((rs.leg(1.0, 5.0), rs.leg(-1.0, 5.0), rs.pause(2.0), rs.leg(6.0, 5.0)))
     plain = _clean({}, program=program)
-    dwell = _clean({"dwell_stiction": {"gain": 0.5, "tau": 0.5, "decay": 1e-3}},
-                   program=program)
+    dwell = _clean({"dwell_stiction": {"kind": "level", "gain": 0.5, "tau": 0.5,
+                                       "decay": 1e-3}}, program=program)
     diff = dwell["force"] - plain["force"]
     t = plain["time"]
-    before_pause = t < 0.55
-    assert np.abs(diff[before_pause]).max() < 1e-9
+    assert np.abs(diff[t < 0.55]).max() < 1e-9
     # after the pause, toward B: an extra breakaway below gain * (1 - exp(-4)) * Fc, faded
     # over the ~0.5 mm the Dahl branch needs to reach it
     assert 0.5 * 18 > diff.max() > 0.5 * 18 * 0.2

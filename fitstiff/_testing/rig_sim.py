@@ -33,8 +33,13 @@ viscous            ``c`` N s/m: force ``c v``
 stribeck           ``ratio``, ``vs`` m/s: level ``1 + (ratio - 1) exp(-(v/vs)^2)``
 asymmetry          ``level``, ``slope``: factors ``1 + a d``, ``1 + b d`` (d: last direction)
 pressure_friction  ``beta`` 1/Pa, ``p_ref`` Pa gauge: level ``exp(beta (p_supply - p_ref))``
-dwell_stiction     ``gain``, ``tau`` s, ``decay`` m: level
-                   ``1 + gain (1 - exp(-t_dwell/tau)) exp(-travel/decay)``
+dwell_stiction     ``gain`` N, ``tau`` s, ``decay`` m: a junction that forms at the position
+                   where a standstill starts, of strength ``S = gain ln(1 + t_dwell/tau)``;
+                   it loads elastically (stiffness ``S / decay``) from that position
+                   whichever way the motion resumes, breaks at ``S`` and releases over
+                   ``decay / 5`` of further travel (fitstiff's term is a smooth peak instead);
+                   ``kind="level"``: a friction level factor
+                   ``1 + gain (1 - exp(-t_dwell/tau)) exp(-travel/decay)`` instead
 heat_transfer      ``rate`` 1/s (gas temperature relaxes to the wall's; ``n`` is then 1.4)
 leakage            ``rate`` 1/s (pressure difference relaxes, ``p_A V_A + p_B V_B`` kept)
 inertia            ``mass`` kg: force ``m a``
@@ -231,6 +236,8 @@ def simulate_log(program: Program, *, base: Base, effects: Mapping[str, Mapping[
     st = e.get("stribeck")
     asym = e.get("asymmetry")
     dwell = e.get("dwell_stiction")
+    junction = dwell is not None and dwell.get("kind", "junction") == "junction"
+    u_pause, broken, f_break, past_break = 0.0, True, 0.0, 0.0
     level_p = (math.exp(e["pressure_friction"]["beta"] * (base.supply - p_ref))
                if "pressure_friction" in e else 1.0)
     ms = e.get("maxwell_slip")
@@ -242,6 +249,7 @@ def simulate_log(program: Program, *, base: Base, effects: Mapping[str, Mapping[
     u = np.empty(N)          # piston displacement
     F_dahl = np.empty(N)
     F_ms = np.empty(N)
+    F_j = np.zeros(N)
     pa = np.empty(N)
     pb = np.empty(N)
     y = [p0, p0, 1.0, 1.0, 0.0]
@@ -293,8 +301,9 @@ def simulate_log(program: Program, *, base: Base, effects: Mapping[str, Mapping[
             else:
                 travel += abs(dxs)
             was_still = still
-            level *= 1.0 + (dwell["gain"] * (1.0 - math.exp(-t_dwell / dwell["tau"]))
-                            * math.exp(-travel / dwell["decay"]))
+            if not junction:
+                level *= 1.0 + (dwell["gain"] * (1.0 - math.exp(-t_dwell / dwell["tau"]))
+                                * math.exp(-travel / dwell["decay"]))
         sig, fcl = sigma0 * slope, Fc * level
         # piston increment (rig compliance in differential form)
         if comp and dxs != 0.0:
@@ -304,6 +313,8 @@ def simulate_log(program: Program, *, base: Base, effects: Mapping[str, Mapping[
                 k_tan += float(np.sum(k_ms * slope * (np.abs(f_ms) < w_ms * level)))
             if chamber:
                 k_tan += n_exp * area * (y[0] / (la0 + uu) + y[1] / (lb0 - uu))
+            if junction and not (broken or still):
+                k_tan += dwell["gain"] * math.log1p(t_dwell / dwell["tau"]) / dwell["decay"]
             du = dxs / (1.0 + comp * k_tan)
         else:
             du = dxs
@@ -322,10 +333,23 @@ def simulate_log(program: Program, *, base: Base, effects: Mapping[str, Mapping[
         if k_ms.size:
             f_ms = np.clip(f_ms + k_ms * slope * du, -w_ms * level, w_ms * level)
         uu += du
+        if junction:
+            if still:                      # the junction forms (and ages) where it stands
+                u_pause, broken, past_break = uu, False, 0.0
+            else:
+                strength = dwell["gain"] * math.log1p(t_dwell / dwell["tau"])
+                load = strength / dwell["decay"] * (uu - u_pause)
+                if not broken and abs(load) >= strength:
+                    broken, f_break = True, math.copysign(strength, load)
+                if broken:
+                    past_break += abs(du)
+                    F_j[j + 1] = f_break * math.exp(-past_break / (0.2 * dwell["decay"]))
+                else:
+                    F_j[j + 1] = load
         u[j + 1], pa[j + 1], pb[j + 1], F_dahl[j + 1] = uu, y[0], y[1], y[4]
         F_ms[j + 1] = float(f_ms.sum()) if k_ms.size else 0.0
 
-    F = F_dahl + F_ms
+    F = F_dahl + F_ms + F_j
     if chamber:
         F = F + area * ((pb - AMBIENT) - (pa - AMBIENT))
     else:

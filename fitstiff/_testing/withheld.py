@@ -40,12 +40,12 @@ FAMILIES = ("single", "null", "ool", "pair", "missing")
 #: effect sizes: (low, high) of the main parameter in the diagnosis' display unit, drawn
 #: log-uniform; the low ends sit near what the three logs (about 5000 samples) at 0.1-0.3 N noise detect
 SIZES = {"viscous": (5.0, 200.0), "stribeck": (0.03, 0.5), "asymmetry": (0.02, 0.2),
-         "pressure_friction": (0.02, 0.2), "dwell_stiction": (0.05, 0.6),
+         "pressure_friction": (0.02, 0.2), "dwell_stiction": (1.0, 10.0),
          "heat_transfer": (0.1, 3.0), "leakage": (0.005, 0.2), "inertia": (0.3, 8.0),
          "force_drift": (0.005, 0.2), "time_delay": (0.3, 5.0),
          "rig_compliance": (1e-3, 2e-2), "maxwell_slip": (3.0, 30.0), "chamber": (1.0, 1.0)}
 UNITS = {"viscous": "N s/m", "stribeck": "Fs/Fc - 1", "asymmetry": "-", "pressure_friction":
-         "1/bar", "dwell_stiction": "-", "heat_transfer": "1/s", "leakage": "1/s",
+         "1/bar", "dwell_stiction": "N", "heat_transfer": "1/s", "leakage": "1/s",
          "inertia": "kg", "force_drift": "N/s", "time_delay": "ms", "rig_compliance": "mm/N",
          "maxwell_slip": "N/mm", "chamber": "gate"}
 SUBSTEPS = 15
@@ -75,7 +75,7 @@ def draw_effect(name: str, rng: np.random.Generator, *, strong: bool = False
         return {"beta": size / 1e5}, size
     if name == "dwell_stiction":
         return {"gain": size, "tau": _loguniform(rng, 0.2, 2.0),
-                "decay": _loguniform(rng, 0.2e-3, 1.0e-3)}, size
+                "decay": _loguniform(rng, 0.05e-3, 0.3e-3)}, size
     if name in ("heat_transfer", "leakage"):
         return {"rate": size}, size
     if name == "inertia":

@@ -47,7 +47,7 @@ POWER = 0.8
 #: shape parameters scanned by the screen (SI); the first value starts the model
 SHAPE_GRIDS: dict[str, dict[str, tuple[float, ...]]] = {
     "stribeck": {"stribeck_vs": (0.5e-3, 2e-3, 8e-3)},
-    "dwell_stiction": {"dwell_tau": (0.3, 3.0), "dwell_decay": (0.1e-3, 0.5e-3)},
+    "dwell_stiction": {"dwell_tau": (0.3, 3.0), "dwell_decay": (0.05e-3, 0.2e-3)},
 }
 _COLLINEAR = 1e-6    # share of a candidate column left after projection: not testable
 #: correlation of two candidates' projected columns above which the screen cannot order them

@@ -3,11 +3,11 @@
 from fitstiff.terms.base import (ForceSource, ForceTerm, FrictionBase, InputTerm, Modifier,
                                  Modulation, SeriesTerm, Step, Term)
 from fitstiff.terms.chamber import Chamber
-from fitstiff.terms.forces import ForceDrift, Inertia, Viscous
+from fitstiff.terms.forces import DwellStiction, ForceDrift, Inertia, Viscous
 from fitstiff.terms.friction import Coulomb, Dahl, LuGre, MaxwellSlip
 from fitstiff.terms.measurement import RigCompliance, TimeDelay
-from fitstiff.terms.modifiers import (Asymmetry, DwellStiction, HeatTransfer, Leakage,
-                                      PressureFriction, Stribeck)
+from fitstiff.terms.modifiers import (Asymmetry, HeatTransfer, Leakage, PressureFriction,
+                                      Stribeck)
 
 __all__ = ["ROLES", "TERMS", "EFFECTS", "FRICTION_BASES", "Chamber", "ForceSource",
            "ForceTerm", "FrictionBase", "InputTerm", "Modifier", "Modulation", "SeriesTerm",

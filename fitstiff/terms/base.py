@@ -12,10 +12,10 @@ it:
 :class:`FrictionBase`  a seal-friction base (Dahl, LuGre, Maxwell-slip, Coulomb); its step
               returns the friction force and honours the level / slope factors of the
               modifiers; it starts from the data (:meth:`FrictionBase.start`).
-:class:`ForceTerm`  any other additive force (viscous, inertia, force drift).
+:class:`ForceTerm`  any other additive force (viscous, inertia, force drift, dwell stiction).
 :class:`Modifier`  changes another term rather than adding a force: it returns a
               :class:`Modulation` every step (friction level and slope factors for
-              Stribeck, asymmetry, pressure-dependent and dwell-dependent friction; heat and
+              Stribeck, asymmetry and pressure-dependent friction; heat and
               leak rates for the chamber); :attr:`Modifier.targets` is the role it acts on.
 :class:`InputTerm`  transforms the measured displacement before the scan (time delay).
 :class:`SeriesTerm`  a compliance between the displacement sensor and the piston (rig
@@ -174,8 +174,8 @@ class ForceSource(Term):
 
 
 class ForceTerm(ForceSource):
-    """Role: an additive force other than the chamber and the seal (viscous, inertia, force
-    drift)."""
+    """Role: an additive force other than the chamber and the friction base (viscous,
+    inertia, force drift, the junction of dwell stiction)."""
 
 
 class FrictionBase(ForceSource):

@@ -16,8 +16,7 @@ from fitstiff.params import Param
 from fitstiff.terms.base import FrictionBase, Modifier, Modulation, Step
 from fitstiff.terms.chamber import Chamber
 
-__all__ = ["Asymmetry", "DwellStiction", "HeatTransfer", "Leakage", "PressureFriction",
-           "Stribeck"]
+__all__ = ["Asymmetry", "HeatTransfer", "Leakage", "PressureFriction", "Stribeck"]
 
 
 class Stribeck(Modifier):
@@ -94,36 +93,6 @@ class PressureFriction(Modifier):
                         + (s.p_b if drive.modes[1] == "measured" else
                            drive.p_b0 if drive.modes[1] == "closed" else drive.p_amb))
         return state, Modulation(level=jnp.exp(self.beta * (p_seal - drive.p_amb - self.p_ref)))
-
-
-class DwellStiction(Modifier):
-    name = "dwell_stiction"
-    targets = FrictionBase
-    summary = "extra breakaway after a standstill, growing with its duration"
-    excitation = "pauses (standstills of 0.2 s or more, better several of different lengths) followed by motion"
-
-    dwell_gain: float = 0.3
-    dwell_tau: float = 1.0
-    dwell_decay: float = 0.2e-3
-
-    def params(self):
-        return (Param("dwell_gain", "-", 1.0, 0.0, np.inf,
-                      "extra level after a long standstill (fraction of the level)", null=0.0),
-                Param("dwell_tau", "s", 1.0, 0.0, np.inf, "growth time of the extra level"),
-                Param("dwell_decay", "mm", 1e-3, 0.0, np.inf,
-                      "travel over which the extra level fades after motion resumes"))
-
-    def init(self, drive):
-        z = jnp.zeros(())
-        return (z, z + 1.0, z)   # dwell time, travel since motion resumed, was still
-
-    def modulate(self, state, s: Step, drive):
-        t_dwell, travel, was_still = state
-        t_dwell = jnp.where(s.still > 0, jnp.where(was_still > 0, t_dwell + s.dt, s.dt), t_dwell)
-        travel = jnp.where(s.still > 0, 0.0, travel + jnp.abs(s.dx))
-        extra = (self.dwell_gain * (1.0 - jnp.exp(-t_dwell / self.dwell_tau))
-                 * jnp.exp(-travel / self.dwell_decay))
-        return (t_dwell, travel, s.still), Modulation(level=1.0 + extra)
 
 
 class HeatTransfer(Modifier):

@@ -1,0 +1,52 @@
+"""Independent seal sets of issue 31: one physical effect each, simulated by the NumPy rig
+simulator (:mod:`fitstiff._testing.rig_sim`, no physics code shared with the fit) in a form
+the diagnosis' term only approximates.
+
+``junction_dwell``  pauses at the turning points, the motion continuing or reversing after
+                    them, and stiction that ages with the pause: a junction that loads from the
+                    pause position and breaks at ``gain ln(1 + pause / tau)`` (the term is a
+                    smooth peak).
+
+``benchmarks/independent_sets.py`` diagnoses the full-size sets; the suite runs a small one.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from fitstiff._testing import rig_sim as rs
+
+__all__ = ["junction_dwell"]
+
+
+def junction_dwell(*, gain: float = 4.0, tau: float = 0.5, decay: float = 0.1e-3,
+                   noise_N: float = 0.2, rate_hz: float = 500.0, small: bool = False,
+                   seed: int = 0) -> list:
+    """Logs with pauses at turning points and a junction-type dwell stiction (``gain`` N per
+    unit of ``ln(1 + pause / tau)``, breaking ``decay`` m from the pause position). Four logs
+    with pauses of 0.5-20 s (about 21 000 samples at 500 Hz), or ``small``: three logs with
+    pauses of 0.5-5 s at 250 Hz (about 5 000 samples). ``gain = 0``: the same logs without
+    the effect."""
+    rng = np.random.default_rng([seed, 31])
+    pauses = ([(0.5, 2.0, 5.0), (1.0, 3.0, 0.7), (4.0, 0.5, 1.5)] if small else
+              [(0.5, 2.0, 8.0), (1.0, 4.0, 20.0), (0.7, 3.0, 12.0), (1.5, 6.0, 15.0)])
+    speeds = (1.0, 2.0, 4.0, 1.5)
+    supplies = (4e5, 5e5, 6e5, 4.5e5)
+    logs = []
+    for i, (p1, p2, p3) in enumerate(pauses):
+        v = speeds[i]
+        segs = rs.triangles((0.3,), v)
+        # reverses after the first two pauses, continues after the third
+        segs += [rs.leg(1.0, v), rs.pause(p1), rs.leg(-1.0, v), rs.pause(p2),
+                 rs.leg(-2.0, v), rs.leg(0.5, v), rs.pause(p3), rs.leg(2.0, v),
+                 rs.leg(0.0, v)]
+        base = rs.Base(sigma0=40e3, Fc=18.0, n=1.3, x0=(0.2, 0.35, 0.5, 0.3)[i],
+                       supply=supplies[i])
+        effects = ({"dwell_stiction": {"gain": gain, "tau": tau, "decay": decay}}
+                   if gain else {})
+        log, _ = rs.simulate_log(rs.Program(tuple(segs), description=f"junction dwell {i}"),
+                                 base=base, effects=effects,
+                                 noise=rs.SensorNoise(force_N=noise_N), rate_hz=rate_hz,
+                                 rng=rng, name=f"junction_dwell_{i}", p_ref=5e5)
+        logs.append(log)
+    return logs
