@@ -77,10 +77,11 @@ class DwellStiction(ForceTerm):
     ``dwell_decay``: a stiff rise from the pause position (initial slope ``1.65 S / d``), a
     peak of ``S`` at ``d`` of travel, then a release (to 5 % at ``3 d``). Added to the
     friction base's force, it makes the first branch after a pause stiffer and higher, both
-    where the motion continues and where it reverses. (A level factor on a Dahl base cannot: a higher level makes the branch
-    after a reversal *softer*, initial slope ``sigma0 (1 + F / level)``.) The clock runs while
-    the drive's ``still`` flag is set (standstills of 0.2 s or more,
-    :mod:`fitstiff.segmentation`); a new standstill starts a new junction.
+    where the motion continues and where it reverses. (A level factor on a Dahl base cannot:
+    a higher level makes the branch after a reversal *softer*, initial slope
+    ``sigma0 (1 + F / level)``.) The clock runs while the drive's ``still`` flag is set
+    (standstills of 0.2 s or more, :mod:`fitstiff.segmentation`); a new standstill starts a
+    new junction.
     """
 
     name = "dwell_stiction"
