@@ -246,10 +246,13 @@ def test_a_rig_compliance_is_accepted_over_the_maxwell_slip_mimic():
 
 
 def test_two_missing_effects_that_fail_alone_are_accepted_together():
-    """A rig compliance and dwell stiction both withheld: alone, each refit transfers badly to
-    the left-out log (held-out RMS 0.68 -> 0.71 and 0.62 N), together they reach 0.39 N."""
-    r = wh.run_dataset("pair/rig_compliance+dwell_stiction/1",
-                       candidates="rig_compliance,dwell_stiction")
+    """Pressure-dependent friction and a 2.3 kg inertia both withheld: alone, each refit
+    removes 25 % of the gap (held-out RMS 2.94 -> 2.28 and 2.27 N; the other's misfit spoils
+    the transfer to the left-out log), together they reach 1.02 N. (The pair of issue 31's
+    first session, a rig compliance with dwell stiction, no longer serves: with the junction
+    law of dwell stiction its screen has the wrong sign under a large compliance.)"""
+    r = wh.run_dataset("pair/pressure_friction+inertia/2",
+                       candidates="pressure_friction,inertia")
     assert "error" not in r, r
-    assert sorted(r["accepted"]) == ["dwell_stiction", "rig_compliance"], wh._line(r)
+    assert sorted(r["accepted"]) == ["inertia", "pressure_friction"], wh._line(r)
     assert r["shrink"] > 0.3

@@ -6,6 +6,8 @@ the diagnosis' term only approximates.
                     them, and stiction that ages with the pause: a junction that loads from the
                     pause position and breaks at ``gain ln(1 + pause / tau)`` (the term is a
                     smooth peak).
+``maxwell_seal``    a seal whose friction is a Maxwell-slip law of a few unequal elements, no
+                    Dahl; the candidate sits on a Dahl baseline and must take over.
 
 ``benchmarks/independent_sets.py`` diagnoses the full-size sets; the suite runs a small one.
 """
@@ -16,7 +18,7 @@ import numpy as np
 
 from fitstiff._testing import rig_sim as rs
 
-__all__ = ["junction_dwell"]
+__all__ = ["junction_dwell", "maxwell_seal"]
 
 
 def junction_dwell(*, gain: float = 4.0, tau: float = 0.5, decay: float = 0.1e-3,
@@ -48,5 +50,30 @@ def junction_dwell(*, gain: float = 4.0, tau: float = 0.5, decay: float = 0.1e-3
                                  base=base, effects=effects,
                                  noise=rs.SensorNoise(force_N=noise_N), rate_hz=rate_hz,
                                  rng=rng, name=f"junction_dwell_{i}", p_ref=5e5)
+        logs.append(log)
+    return logs
+
+
+def maxwell_seal(*, k: tuple[float, ...] = (25e3, 10e3, 5e3),
+                 delta: tuple[float, ...] = (0.1e-3, 0.4e-3, 1.0e-3), noise_N: float = 0.2,
+                 rate_hz: float = 250.0, small: bool = False, seed: int = 0) -> list:
+    """Logs of a seal whose friction **is** a Maxwell-slip law (no Dahl): elements of
+    stiffness ``k`` (N/m) and slip displacement ``delta`` (m), unequal, on four logs (three,
+    shorter, when ``small``) of growing triangles with nested minor loops at 1-8 mm/s."""
+    rng = np.random.default_rng([seed, 32])
+    speeds = (1.0, 3.0, 8.0, 2.0)[: 3 if small else 4]
+    logs = []
+    for i, v in enumerate(speeds):
+        segs = rs.triangles((0.2, 0.6) if small else (0.2, 0.6, 1.5), v)
+        # a large loop with nested minor loops (non-local memory)
+        segs += [rs.leg(1.2, v), rs.leg(0.6, v), rs.leg(1.0, v), rs.leg(-1.2, v),
+                 rs.leg(-0.5, v), rs.leg(-0.9, v), rs.leg(0.3, v), rs.leg(0.0, v)]
+        base = rs.Base(Fc=0.0, n=1.3, x0=(0.2, 0.35, 0.5, 0.3)[i],
+                       supply=(3e5, 4.5e5, 6e5, 5e5)[i])
+        log, _ = rs.simulate_log(rs.Program(tuple(segs), description=f"maxwell seal {i}"),
+                                 base=base,
+                                 effects={"maxwell_slip": {"k": list(k), "delta": list(delta)}},
+                                 noise=rs.SensorNoise(force_N=noise_N), rate_hz=rate_hz,
+                                 rng=rng, name=f"maxwell_seal_{i}", p_ref=4.5e5)
         logs.append(log)
     return logs

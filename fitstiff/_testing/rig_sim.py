@@ -165,7 +165,7 @@ class Base:
     """The baseline physics of one log (SI): Dahl friction, closed chambers."""
 
     sigma0: float = 40e3       # N/m
-    Fc: float = 18.0           # N
+    Fc: float = 18.0           # N (0: no Dahl friction, e.g. a Maxwell-slip seal instead)
     n: float = 1.3             # polytropic exponent
     x0: float = 0.35           # m, chamber A length at the start
     supply: float = 6e5        # Pa gauge, both chambers closed at it
@@ -259,7 +259,7 @@ def simulate_log(program: Program, *, base: Base, effects: Mapping[str, Mapping[
 
     def deriv(yv, uu, v, sig, fcl, sgn):
         pa_, pb_, ta, tb, f = yv
-        out_f = sig * v * (1.0 - f / fcl * sgn)
+        out_f = sig * v * (1.0 - f / fcl * sgn) if fcl else 0.0
         if not chamber:
             return (0.0, 0.0, 0.0, 0.0, out_f)
         la, lb = la0 + uu, lb0 - uu
@@ -308,7 +308,7 @@ def simulate_log(program: Program, *, base: Base, effects: Mapping[str, Mapping[
         # piston increment (rig compliance in differential form)
         if comp and dxs != 0.0:
             sgn0 = 1.0 if dxs > 0 else -1.0
-            k_tan = sig * (1.0 - y[4] / fcl * sgn0)
+            k_tan = sig * (1.0 - y[4] / fcl * sgn0) if fcl else 0.0
             if k_ms.size:
                 k_tan += float(np.sum(k_ms * slope * (np.abs(f_ms) < w_ms * level)))
             if chamber:
