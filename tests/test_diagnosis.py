@@ -408,3 +408,29 @@ def test_an_accepted_effect_the_others_make_redundant_is_dropped(junction_logs):
     kept = diag._prune(sp, folds, [("dwell_stiction",)], current, theta, hold, both,
                        weights, noise=noise, min_shrink=0.3)
     assert kept[4] == {}
+
+
+@pytest.mark.slow
+def test_a_leak_far_beyond_its_one_step_value_is_refitted_and_named():
+    # the leak rate enters strongly nonlinearly: its one-step value falls far short of a
+    # 4 s time constant, so the refit also starts further out along the step
+    from fitstiff._testing.independent import leaky_chambers
+    from fitstiff.diagnosis import diagnose
+
+    d = diagnose(leaky_chambers(small=True), candidates="leakage,heat_transfer,viscous")
+    assert d.accepted == ("leakage",), d.verdict
+    c = d.candidate("leakage")
+    assert c.shrink > 0.6
+    assert c.parameters["leak_rate"]["value"] == pytest.approx(0.25, rel=0.15)
+
+
+@pytest.mark.slow
+def test_a_seal_whose_friction_is_maxwell_slip_is_named_maxwell_slip():
+    # no Dahl in the data: three unequal elasto-slide elements; the candidate on the Dahl
+    # baseline has to carry the seal's memory of nested minor loops
+    from fitstiff._testing.independent import maxwell_seal
+    from fitstiff.diagnosis import diagnose
+
+    d = diagnose(maxwell_seal(small=True), candidates="maxwell_slip,viscous")
+    assert d.accepted == ("maxwell_slip",), d.verdict
+    assert d.candidate("maxwell_slip").shrink > 0.6

@@ -8,6 +8,9 @@ the diagnosis' term only approximates.
                     smooth peak).
 ``maxwell_seal``    a seal whose friction is a Maxwell-slip law of a few unequal elements, no
                     Dahl; the candidate sits on a Dahl baseline and must take over.
+``leaky_chambers``  a leak past the piston (time constant 4 s) with the chamber pressures
+                    not logged, rates 0.2-20 mm/s, displaced holds: the leak rate enters
+                    strongly nonlinearly, far beyond a one-step value.
 
 ``benchmarks/independent_sets.py`` diagnoses the full-size sets; the suite runs a small one.
 """
@@ -18,7 +21,7 @@ import numpy as np
 
 from fitstiff._testing import rig_sim as rs
 
-__all__ = ["junction_dwell", "maxwell_seal"]
+__all__ = ["junction_dwell", "leaky_chambers", "maxwell_seal"]
 
 
 def junction_dwell(*, gain: float = 4.0, tau: float = 0.5, decay: float = 0.1e-3,
@@ -75,5 +78,31 @@ def maxwell_seal(*, k: tuple[float, ...] = (25e3, 10e3, 5e3),
                                  effects={"maxwell_slip": {"k": list(k), "delta": list(delta)}},
                                  noise=rs.SensorNoise(force_N=noise_N), rate_hz=rate_hz,
                                  rng=rng, name=f"maxwell_seal_{i}", p_ref=4.5e5)
+        logs.append(log)
+    return logs
+
+
+def leaky_chambers(*, rate: float = 0.25, noise_N: float = 0.2, small: bool = False,
+                   seed: int = 0) -> list:
+    """Logs of closed chambers that leak past the piston (``rate`` 1/s: the pressure
+    difference relaxes with time constant ``1 / rate``), pressures not logged: per log a
+    stroke of 3 mm held for 3 s (8 s unless ``small``), back, and triangles of 0.3 mm (and
+    1 mm unless ``small``), at 0.2, 2 and 20 mm/s (and 5 mm/s unless ``small``)."""
+    rng = np.random.default_rng([seed, 33])
+    speeds = (0.2, 2.0, 20.0) if small else (0.2, 2.0, 20.0, 5.0)
+    hold = 3.0 if small else 8.0
+    logs = []
+    for i, v in enumerate(speeds):
+        side = 3.0 if i % 2 == 0 else -3.0
+        segs = [rs.leg(side, max(v, 2.0)), rs.pause(hold), rs.leg(0.0, max(v, 2.0)),
+                rs.pause(1.0)]
+        segs += rs.triangles((0.3,) if small else (0.3, 1.0), v)
+        base = rs.Base(n=1.3, x0=(0.15, 0.35, 0.55, 0.25)[i],
+                       supply=(6e5, 4e5, 5e5, 6e5)[i])
+        log, _ = rs.simulate_log(rs.Program(tuple(segs), description=f"leaky chambers {i}"),
+                                 base=base, effects={"leakage": {"rate": rate}},
+                                 noise=rs.SensorNoise(force_N=noise_N, log_pressures=False),
+                                 rate_hz=200.0 if v < 5 else 500.0, rng=rng,
+                                 name=f"leaky_chambers_{i}", p_ref=5e5)
         logs.append(log)
     return logs
