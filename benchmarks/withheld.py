@@ -20,6 +20,7 @@ Resumable (finished datasets are kept in the JSON and skipped); one line per dat
     python benchmarks/withheld.py --quick                  # 3 effects, 3 nulls, 1 ool, 1 missing
     python benchmarks/withheld.py --workers 2              # the full run (~210 datasets)
     python benchmarks/withheld.py --family single --seeds 5 --nulls 0
+    python benchmarks/withheld.py --effects dwell_stiction --nulls 5   # what withholds it
 """
 
 from __future__ import annotations
@@ -323,6 +324,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--rate-scale", type=float, default=1.0,
                         help="factor on the sample rates (smaller logs; default 1)")
     parser.add_argument("--limit", type=int, default=None, help="run at most this many")
+    parser.add_argument("--effects", nargs="+", default=None, metavar="EFFECT",
+                        help="only the datasets that withhold one of these (nulls are kept)")
     parser.add_argument("--json", type=Path, default=JSON_PATH)
     parser.add_argument("--no-figure", action="store_true")
     args = parser.parse_args(argv)
@@ -331,6 +334,9 @@ def main(argv: Sequence[str] | None = None) -> None:
         records = json.loads(args.json.read_text()).get("datasets", {})
     ids = dataset_ids(families=args.family, seeds=args.seeds, nulls=args.nulls,
                       pair_seeds=args.pair_seeds, quick=args.quick)
+    if args.effects:
+        ids = [d for d in ids if d.startswith("null/")
+               or set(d.split("/")[1].split("+")) & set(args.effects)]
     todo = [d for d in ids if d not in records]
     if args.limit is not None:
         todo = todo[: args.limit]
