@@ -649,8 +649,9 @@ def plot_gap_heatmap(ax: Axes, table, *, label: str = "z-score of the RMS agains
                      limit: float = 30.0) -> Axes:
     """Region x log heat map of a held-out misfit table (rows regions, columns logs, as
     :func:`fitstiff.diagnosis.gap.region_summary` returns); cells are annotated with their
-    value, blank where the log has no such samples. The colour scale is clipped at
-    ``limit``; 3 (the diagnosis's threshold) sits near the bottom."""
+    value, blank where the log has no such samples. The colour scale runs from 0 to
+    ``limit`` (larger values are drawn at it); the report gives the before and after maps one
+    ``limit``, the largest cell of the two."""
     values = np.asarray(table.to_numpy(), dtype=float)
     if values.ndim != 2 or values.size == 0:
         raise InputError(None, "gap table", f"has shape {values.shape}",

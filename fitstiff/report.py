@@ -604,16 +604,23 @@ def _diagnosis_report(run: RunDirectory, *, draws: int) -> _Report:
 
     fig = Figure(figsize=(12, 3.6 + 0.3 * len(logs)), layout="constrained")
     axes = fig.subplots(1, 2 if changed else 1, squeeze=False)[0]
-    plotting.plot_gap_heatmap(axes[0], region_summary(before, segs, noise, masks))
-    axes[0].set_title(f"baseline {result.baseline}")
-    if changed:
-        plotting.plot_gap_heatmap(axes[1], region_summary(after, segs, noise, masks))
-        axes[1].set_title(f"with {', '.join(result.accepted)}")
-    heat = ReportFigure("gap_heatmap", "Held-out misfit per region and log: z-score of the "
-                        "residual's mean square against the log's noise floor (3 or more: "
-                        "above the noise; blank: no such samples)"
-                        + (", before and after the accepted effects." if changed else "."),
-                        fig)
+    # the RMS above the noise in N, on one colour scale before and after: the z-score
+    # saturates on real logs (every cell of the O-ring set above any cap, up to 1.8e5), so
+    # before and after looked the same
+    tables = [region_summary(r, segs, noise, masks, value="excess_N")
+              for r in ((before, after) if changed else (before,))]
+    top = max((float(np.nanmax(t.to_numpy())) for t in tables
+               if np.isfinite(t.to_numpy()).any()), default=0.0)
+    label = "held-out RMS above the noise floor [N]"
+    for ax, table, title in zip(axes, tables, (f"baseline {result.baseline}",
+                                               f"with {', '.join(result.accepted)}")):
+        plotting.plot_gap_heatmap(ax, table, label=label, limit=max(top, 1e-9))
+        ax.set_title(title)
+    heat = ReportFigure("gap_heatmap", "Held-out misfit per region and log: RMS above the "
+                        "log's noise floor in N, sqrt(max(rms^2 - sigma^2, 0)) (0: at the "
+                        "noise; blank: no such samples)"
+                        + (", before and after the accepted effects on one colour scale."
+                           if changed else "."), fig)
     signature = _signature_figure(logs, segs, before, after if changed else None, masks)
     loops = tuple(_diagnosis_loop(log, b, a if changed else None, result, i)
                   for i, (log, b, a) in enumerate(zip(logs, before, after)))

@@ -222,6 +222,10 @@ def test_withheld_viscous_is_found_and_named(tmp_path):
     assert proc.returncode == 0, proc.stderr
     page = (out / "report.html").read_text()
     assert "Accepted: viscous." in page and "Candidate effects" in page
+    # the heat maps show N above the noise on one scale (a z-score saturated on real logs)
+    assert "RMS above the log&#x27;s noise floor in N" in page or \
+        "RMS above the log's noise floor in N" in page
+    assert "on one colour scale" in page
     for name in ("gap_heatmap", "residual_signatures", "diagnosis_loop_log0"):
         assert (out / "figures" / f"{name}.png").stat().st_size > 10_000
         assert f'id="{name}"' in page
