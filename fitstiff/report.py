@@ -350,13 +350,22 @@ class _Verdict:
     details: tuple[str, ...]
 
 
+def _per_log_noise(noise: Mapping[str, float], *, what: str = "force noise estimate") -> str:
+    """``a force noise estimate of 0.2 N`` for one log; for several, every log's own (a mean
+    would hide a log whose noise differs)."""
+    if len(noise) == 1:
+        return f"a {what} of {next(iter(noise.values())):.3g} N"
+    return (f"{what}s of " + ", ".join(f"{v:.3g} N ({k})" for k, v in noise.items()))
+
+
 def _fit_verdict(result: Mapping[str, Any]) -> _Verdict:
     rms = result["rms_N"]
-    noise = float(np.mean([p["force_noise_N"] for p in result["per_log"]]))
+    noise = _per_log_noise({p.get("name", f"log {i + 1}"): p["force_noise_N"]
+                            for i, p in enumerate(result["per_log"])})
     warnings_ = tuple(result["warnings"])
     if result["converged"]:
         headline = (f"The fit converged ({result['solver']}, {result['steps']} steps): RMS "
-                    f"residual {rms:.3g} N against a force noise estimate of {noise:.3g} N.")
+                    f"residual {rms:.3g} N against {noise}.")
     else:
         headline = f"The fit did NOT converge: {result['message']}. Do not use its numbers."
     status = "bad" if not result["converged"] else ("caution" if warnings_ else "ok")
@@ -628,7 +637,10 @@ def _diagnosis_report(run: RunDirectory, *, draws: int) -> _Report:
     summary = (_diagnosis_tables(result)
                + _p(f"Held-out RMS of the baseline {gap['heldout_rms_N']:.3g} N, of "
                     f"{result.final_model} {gap['final_heldout_rms_N']:.3g} N; noise floor "
-                    f"{gap['noise_N']:.3g} N (from the data alone). Folds: "
+                    f"{gap['noise_N']:.3g} N pooled over the logs, from the data alone ("
+                    + _per_log_noise({k: float(v["sigma_N"])
+                                      for k, v in result.noise_N.items()},
+                                     what="noise floor") + "). Folds: "
                     + "; ".join(result.folds) + "."))
     sections = [
         _Section("Where the baseline misses", figures=(heat,)),

@@ -4,6 +4,7 @@ bad input, and withheld effects found (or nothing found on a null)."""
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 
@@ -226,6 +227,8 @@ def test_withheld_viscous_is_found_and_named(tmp_path):
     assert "RMS above the log&#x27;s noise floor in N" in page or \
         "RMS above the log's noise floor in N" in page
     assert "on one colour scale" in page
+    # every log's own noise floor beside the pooled one
+    assert re.search(r"noise floors of [0-9.]+ N \(log0\), [0-9.]+ N \(log1\)", page)
     for name in ("gap_heatmap", "residual_signatures", "diagnosis_loop_log0"):
         assert (out / "figures" / f"{name}.png").stat().st_size > 10_000
         assert f'id="{name}"' in page

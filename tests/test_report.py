@@ -99,6 +99,7 @@ def test_fit_report(tmp_path):
     page = report.read_text(encoding="utf-8")
     assert "Fit report: chamber+dahl" in page
     assert "The fit converged (lm, " in page
+    assert re.search(r"against a force noise estimate of [0-9.]+ N\.", page)
     # issue 17 item 5: the samples outside --range are drawn as not fitted, the RMS is theirs
     assert "Light grey: samples outside the fitted range (not fitted)." in page
     assert "over the 600 fitted samples" in page
