@@ -108,7 +108,9 @@ class Model(eqx.Module):
 
     @property
     def spec(self) -> str:
-        return "+".join(t.name for t in self.terms)
+        """The spec that builds this model's structure again (term tokens with their
+        arguments: ``chamber+maxwell_slip:6``)."""
+        return "+".join(t.token for t in self.terms)
 
     @property
     def names(self) -> tuple[str, ...]:

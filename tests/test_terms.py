@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import dataclasses
+import json
+from pathlib import Path
 
 import equinox as eqx
 import numpy as np
@@ -710,3 +712,26 @@ def test_an_ordered_vector_is_checked_once_all_its_elements_are_set():
                                [0.0014e-3, 0.039e-3, 0.052e-3, 0.077e-3])
     with pytest.raises(InputError, match="delta_2: parameter 'delta'.*give an increasing"):
         par.with_values(model, {"delta_2": 10.0e-3})
+
+
+@pytest.mark.parametrize("spec", ["chamber+dahl", "chamber:gated+dahl:alpha+maxwell_slip:3",
+                                  "chamber+dahl+rig_compliance:measured",
+                                  "dahl+maxwell_slip:6+dwell_stiction"])
+def test_a_models_spec_builds_the_same_structure_again(spec):
+    model = build_model(spec)
+    assert model.spec == spec
+    again = build_model(model.spec)
+    assert [p.name for p in Parameterization(again).entries] == \
+        [p.name for p in Parameterization(model).entries]
+
+
+def test_a_maxwell_slip_fit_of_six_elements_is_reported(tmp_path):
+    # the run directory's model is rebuilt from fit.json's spec: it must keep the elements
+    from fitstiff.cli import main
+    from fitstiff.report import write_report
+
+    log = Path(__file__).resolve().parents[1] / "data/synthetic/fig4/p2bar_x350mm.csv"
+    assert main(["fit", str(log), "--model", "chamber+maxwell_slip:6", "--out",
+                 str(tmp_path)]) == 0
+    assert json.loads((tmp_path / "fit.json").read_text())["model"] == "chamber+maxwell_slip:6"
+    assert write_report(tmp_path).is_file()

@@ -141,6 +141,13 @@ class Term(eqx.Module):
                              f"'{cls.name}' takes no argument", f"write '{cls.name}'")
         return cls()
 
+    @property
+    def token(self) -> str:
+        """The spec token that builds this term again (``maxwell_slip:6``, ``dahl:alpha``):
+        :attr:`fitstiff.model.Model.spec` joins them, and a run directory's model is rebuilt
+        from it."""
+        return self.name
+
     def params(self) -> tuple[Param, ...]:
         """Declared free parameters (field names on this module)."""
         return ()

@@ -123,6 +123,10 @@ class Chamber(ForceSource):
         closed = not drives or any("closed" in d.modes for d in drives)
         return cls(closed=closed, gated=arg == "gated")
 
+    @property
+    def token(self) -> str:
+        return "chamber:gated" if self.gated else "chamber"
+
     def params(self):
         out = ()
         if self.closed:

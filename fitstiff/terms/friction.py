@@ -51,6 +51,10 @@ class Dahl(FrictionBase):
                              "write 'dahl' (alpha = 1) or 'dahl:alpha' (alpha fitted)")
         return cls(fit_alpha=arg == "alpha")
 
+    @property
+    def token(self) -> str:
+        return "dahl:alpha" if self.fit_alpha else "dahl"
+
     def params(self):
         out = (_SIGMA0, _FC)
         if self.fit_alpha:
@@ -201,6 +205,11 @@ class MaxwellSlip(FrictionBase):
         shape = np.arange(1, n + 1, dtype=float)
         delta = shape * breakaway / (k * shape).sum()
         return cls(k=jnp.asarray(k), delta=jnp.asarray(delta))
+
+    @property
+    def token(self) -> str:
+        n = int(np.shape(self.k)[0])
+        return "maxwell_slip" if n == 4 else f"maxwell_slip:{n}"   # 4: the default
 
     def params(self):
         n = int(np.shape(self.k)[0])

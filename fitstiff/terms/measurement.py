@@ -69,6 +69,10 @@ class MeasuredForceCompliance(_Compliance, InputTerm):
 
     needs_measured_force = True
 
+    @property
+    def token(self) -> str:
+        return "rig_compliance:measured"
+
     def transform_input(self, drive, x):
         if drive.measured_force is None:
             return x
