@@ -222,10 +222,13 @@ class FitResult:
                                                  else f"{p['stderr']:.4g}")
             lines.append(f"  {name:<22}{p['value']:>14.6g}{err:>12}  {p['unit']}")
         if self.model.has("pressure_friction"):
-            p_ref = self.model.term("pressure_friction").p_ref / 1e5
-            lines.append(f"  (friction levels such as Fc apply at p_ref = {p_ref:.3g} bar gauge, "
-                         "the mean seal pressure of these logs; beta is per bar of the mean "
-                         "of the two chamber pressures)")
+            term = self.model.term("pressure_friction")
+            source = ("as given in the model" if term.p_ref_given else
+                      "the mean seal pressure of these logs; set it with "
+                      "pressure_friction:p_ref=BAR")
+            lines.append(f"  (friction levels such as Fc apply at p_ref = {term.p_ref / 1e5:.3g} "
+                         f"bar gauge, {source}; beta is per bar of the mean of the two chamber "
+                         "pressures)")
         lines.append(f"  {'derived':<22}")
         for name, (v, e) in self.derived.items():
             label, unit = split_unit(name)

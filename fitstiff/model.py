@@ -101,7 +101,7 @@ class Model(eqx.Module):
         out = {}
         for term in self.terms:
             static = {f.name: getattr(term, f.name) for f in dataclasses.fields(term)
-                      if f.metadata.get("static", False)}
+                      if f.metadata.get("static", False) and f.metadata.get("setting", True)}
             if static:
                 out[term.name] = static
         return out

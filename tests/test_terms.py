@@ -735,3 +735,22 @@ def test_a_maxwell_slip_fit_of_six_elements_is_reported(tmp_path):
                  str(tmp_path)]) == 0
     assert json.loads((tmp_path / "fit.json").read_text())["model"] == "chamber+maxwell_slip:6"
     assert write_report(tmp_path).is_file()
+
+
+def test_pressure_friction_reference_can_be_set_and_is_kept_in_the_spec():
+    from fitstiff.log import Rig
+
+    rig = Rig.from_mapping({"bore_mm": 32, "stroke_mm": 700, "start_position_mm": 350,
+                            "supply_bar": 6.0})
+    t, x = polyline([0.0, 10e-3], rate=10e-3)      # far beyond the pre-sliding range
+    drive = make_drive(displacement=x, time=t, rig=rig, needs_chamber=True)
+    assert build_model("dahl+pressure_friction", drives=[drive]).settings()[
+        "pressure_friction"] == {"p_ref": 6e5}                     # the logs' mean
+    given = build_model("dahl+pressure_friction:p_ref=3", drives=[drive])
+    assert given.settings()["pressure_friction"] == {"p_ref": 3e5}
+    assert given.spec == "dahl+pressure_friction:p_ref=3"
+    # Fc is the level at 3 bar: at 6 bar the friction is exp(3 beta) times it
+    given = Parameterization(given).with_values(given, {"beta": 0.1e-5, "Fc": 10.0})
+    assert float(given.predict(drive)[-1]) == pytest.approx(10.0 * np.exp(0.3), rel=1e-3)
+    with pytest.raises(InputError, match="p_ref=BAR"):
+        build_model("dahl+pressure_friction:3")

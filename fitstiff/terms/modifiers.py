@@ -8,10 +8,13 @@ the effect nests the model without it.
 
 from __future__ import annotations
 
+import math
+
 import equinox as eqx
 import numpy as np
 
 from fitstiff._jax import jnp
+from fitstiff.errors import InputError
 from fitstiff.params import Param
 from fitstiff.terms.base import FrictionBase, Modifier, Modulation, Step
 from fitstiff.terms.chamber import Chamber
@@ -72,16 +75,36 @@ class PressureFriction(Modifier):
     excitation = "logs at two or more supply pressures, or a logged chamber pressure that varies"
 
     beta: float = 0.0
-    #: reference gauge pressure (Pa) at which the friction base's levels apply
+    #: reference gauge pressure (Pa) at which the friction base's levels apply: given in the
+    #: spec (``pressure_friction:p_ref=3``, bar gauge), else the mean seal pressure of the
+    #: logs the model is built for, rounded to 0.1 bar
     p_ref: float = eqx.field(static=True, default=0.0)
+    #: ``p_ref`` was given in the spec (the spec then carries it; not a setting of its own)
+    p_ref_given: bool = eqx.field(static=True, default=False, metadata={"setting": False})
 
     @classmethod
     def from_spec(cls, arg, *, drives=()):
-        super().from_spec(arg)
+        if arg is not None:
+            key, _, value = arg.partition("=")
+            try:
+                bar = float(value) if key.strip() == "p_ref" else math.nan
+            except ValueError:
+                bar = math.nan
+            if not math.isfinite(bar):
+                raise InputError(None, f"model term 'pressure_friction:{arg}'",
+                                 "takes only p_ref=BAR (a finite gauge pressure in bar)",
+                                 "write e.g. 'pressure_friction:p_ref=3', or "
+                                 "'pressure_friction' for the logs' mean pressure")
+            return cls(p_ref=bar * 1e5, p_ref_given=True)
         if not drives:
             return cls()
         mean = float(np.mean([float(jnp.mean(d.seal_pressure)) for d in drives]))
         return cls(p_ref=round(mean / 1e4) * 1e4)  # 0.1 bar grid, a readable reference
+
+    @property
+    def token(self) -> str:
+        return (f"pressure_friction:p_ref={self.p_ref / 1e5:g}" if self.p_ref_given
+                else "pressure_friction")
 
     def params(self):
         return (Param("beta", "1/bar", 1e-5, -2e-5, 5e-5,
