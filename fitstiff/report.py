@@ -334,11 +334,17 @@ def _p(text: str) -> str:
 
 
 def _table(headers: Sequence[str], rows: Sequence[Sequence[str]], *,
-           numeric_from: int = 1) -> str:
+           numeric_from: int = 1, prose: Sequence[int] = ()) -> str:
+    """An HTML table; columns from ``numeric_from`` on are numbers (right-aligned, not
+    wrapped), except the ``prose`` columns (sentences: left-aligned, wrapped, so a wide table
+    still fits the page)."""
+    def kind(j: int) -> str:
+        return "prose" if j in prose else "num" if j >= numeric_from else "name"
+
     head = "".join(f"<th>{html.escape(h)}</th>" for h in headers)
     body = "".join(
-        "<tr>" + "".join(f'<td class="{"num" if j >= numeric_from else "name"}">'
-                         f"{html.escape(c)}</td>" for j, c in enumerate(row)) + "</tr>"
+        "<tr>" + "".join(f'<td class="{kind(j)}">{html.escape(c)}</td>'
+                         for j, c in enumerate(row)) + "</tr>"
         for row in rows)
     return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
 
@@ -735,7 +741,7 @@ def _diagnosis_tables(result) -> str:
                      "" if c.accepted else c.why])
     table = _table(["candidate", "score", "p", "held-out before N", "held-out after N",
                     "shrink", "accepted", "regions improved", "detectable at 80 %", "why not"],
-                   rows, numeric_from=1)
+                   rows, numeric_from=1, prose=(7, 9))
     untestable = [f"{e}: {d['reason']}; record {d['record']}"
                   for e, d in result.detectability.items() if not d.get("testable")]
     skipped = [f"{e}: {why}" for e, why in result.skipped.items()]
@@ -861,6 +867,7 @@ table { border-collapse: collapse; margin: 0.8em 0; font-size: 0.92em; }
 th, td { border: 1px solid #ccc; padding: 0.25em 0.6em; }
 th { background: #f2f2f2; text-align: left; }
 td.num { text-align: right; font-variant-numeric: tabular-nums; white-space: nowrap; }
+td.prose { text-align: left; white-space: normal; min-width: 12em; }
 figure { margin: 1.2em 0 1.8em; }
 figure img { max-width: 100%; height: auto; border: 1px solid #eee; }
 figcaption { color: #444; font-size: 0.9em; margin-top: 0.3em; }

@@ -89,3 +89,18 @@ def check_renders_in_chromium(report: Path, tmp_path: Path) -> None:
     dom = _chromium("--virtual-time-budget=20000", "--dump-dom", copy.as_uri(),
                     profile=tmp_path / "profile")
     assert f"<title>images {n_images + 1} broken 1</title>" in dom
+
+
+def page_width_in_chromium(report: Path, tmp_path: Path, *, width: int = 1280) -> int:
+    """The page's layout width (``scrollWidth``) in a ``width`` px wide Chromium window: at
+    most ``width`` when nothing (a table) runs off the right edge."""
+    probe = ('<script>window.addEventListener("load", () => { document.title = '
+             '`width ${document.documentElement.scrollWidth}`; });</script></body>')
+    copy = tmp_path / "width_probe.html"
+    copy.write_text(report.read_text(encoding="utf-8").replace("</body>", probe),
+                    encoding="utf-8")
+    dom = _chromium(f"--window-size={width},1000", "--virtual-time-budget=20000",
+                    "--dump-dom", copy.as_uri(), profile=tmp_path / "profile_width")
+    found = re.search(r"<title>width (\d+)</title>", dom)
+    assert found, dom[:500]
+    return int(found.group(1))

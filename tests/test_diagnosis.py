@@ -10,7 +10,7 @@ import sys
 
 import numpy as np
 import pytest
-from conftest import CHROMIUM, check_renders_in_chromium
+from conftest import CHROMIUM, check_renders_in_chromium, page_width_in_chromium
 
 from fitstiff._jax import jax, jnp
 from fitstiff.noise import noise_floor
@@ -234,6 +234,8 @@ def test_withheld_viscous_is_found_and_named(tmp_path):
         assert f'id="{name}"' in page
     if CHROMIUM is not None:
         check_renders_in_chromium(out / "report.html", tmp_path)
+        # the candidate table's sentences wrap: nothing runs off a 1280 px window
+        assert page_width_in_chromium(out / "report.html", tmp_path, width=1280) <= 1280
 
 
 def test_nothing_is_accepted_without_a_missing_effect():
