@@ -211,6 +211,12 @@ def test_withheld_viscous_is_found_and_named(tmp_path):
     assert data["accepted"] == ["viscous"]
     first = data["candidates"][0]
     assert first["effect"] == "viscous" and first["shrink"] > 0.8
+    # the fitted size with its 95 % interval, in the JSON and the verdict (truth 150 N s/m)
+    c = first["parameters"]["c"]
+    assert c["unit"] == "N s/m" and c["stderr"] > 0
+    assert c["interval_95"][0] < 150 < c["interval_95"][1]
+    assert c["interval_95"][1] - c["interval_95"][0] < 0.2 * 150
+    assert any(line.startswith("viscous (c ") and "N s/m [" in line for line in data["verdict"])
     assert data["detectability"]["viscous"]["unit"] == "N s/m"
     assert 0 < data["detectability"]["viscous"]["size"] < 150
     from fitstiff.diagnosis import Diagnosis

@@ -199,6 +199,11 @@ def diagnose(logs: Sequence[Log], *, baseline: str = "chamber+dahl",
         for effect in unit:
             decided[effect] = dataclasses.replace(decided[effect], accepted=False, why=why)
             accepted.remove(effect)
+    sizes = _fitted_sizes(sp, theta, hold, active, weights, accepted)
+    for effect in accepted:
+        decided[effect] = dataclasses.replace(decided[effect], parameters={
+            name: dict(entry) | sizes.get(name, {})
+            for name, entry in decided[effect].parameters.items()})
     clock["select"] = time.perf_counter()
 
     base_table = region_table(baseline_heldout.residuals, problem.segmentations, noise, masks)
@@ -383,6 +388,42 @@ def _prune(sp: SuperProblem, folds, units: list[tuple[str, ...]], current: HeldO
         theta, _, _, _ = sp.solve(theta, hold, sp.model_mask(active), sp.nuisance_mask(),
                                   weights)
     return current, theta, hold, active, dropped
+
+
+def _fitted_sizes(sp: SuperProblem, theta, hold, active, weights,
+                  effects: Sequence[str]) -> dict[str, dict[str, object]]:
+    """Standard error and 95 % interval (display units) of every fitted parameter of
+    ``effects`` in the final full-data fit: the Gauss-Newton covariance over the free model
+    entries and nuisances, ``s^2 (J^T J)^-1`` with ``s^2`` the residual variance, widened by
+    the residuals' AR(1) factor ``(1 + rho) / (1 - rho)`` (the fit's rule for correlated
+    noise). A parameter the data leave undetermined gets no interval."""
+    if not effects:
+        return {}
+    free = sp.model_mask(active)
+    x = np.asarray(sp.physical(theta, hold, free))
+    r, jac = sp.jacobian(x, theta)
+    keep = np.asarray(weights) > 0
+    cols = np.concatenate([np.flatnonzero(free),
+                           sp.n_model + np.flatnonzero(sp.nuisance_mask())])
+    rf, jf = r[keep], jac[keep][:, cols]
+    dof = max(rf.size - cols.size, 1)
+    rho = float(np.clip(np.corrcoef(rf[:-1], rf[1:])[0, 1], 0.0, 0.99)) if rf.size > 2 else 0.0
+    scale = float(rf @ rf) / dof * (1.0 + rho) / (1.0 - rho)
+    cov = scale * np.linalg.pinv(jf.T @ jf)
+    position = {int(c): j for j, c in enumerate(cols)}
+    par, out = sp.problem.par, {}
+    for effect in effects:
+        for k in sp.elements(effect, fitted=True):
+            var = cov[position[int(k)], position[int(k)]]
+            if not (np.isfinite(var) and var > 0):
+                continue
+            name, se = par.names[k], math.sqrt(var)
+            shown = to_display(sp.problem.model, {name: x[k]})[name]
+            se_shown = abs(float(to_display(sp.problem.model, {name: se})[name]))
+            out[name] = {"stderr": se_shown,
+                         "interval_95": [float(shown) - 1.96 * se_shown,
+                                         float(shown) + 1.96 * se_shown]}
+    return out
 
 
 def _at_null(sp: SuperProblem, hold, effects: Sequence[str]) -> np.ndarray:
@@ -641,11 +682,13 @@ def _verdict(baseline, accepted, decided, gap, still, noise) -> list[str]:
         for e in accepted:
             together = decided[e].together
             if not together:
-                parts.append(f"{e} explains {decided[e].shrink:.0%} of the remaining gap")
+                parts.append(f"{e} ({decided[e].fitted_text}) explains "
+                             f"{decided[e].shrink:.0%} of the remaining gap")
             elif e == together[0]:
-                parts.append(f"{' and '.join(together)} together explain "
-                             f"{decided[e].shrink:.0%} of the remaining gap (neither passed "
-                             "alone)")
+                parts.append(f"{' and '.join(together)} together ("
+                             + "; ".join(decided[t].fitted_text for t in together)
+                             + f") explain {decided[e].shrink:.0%} of the remaining gap "
+                             "(neither passed alone)")
         lines.append("; ".join(parts) + f" (held-out RMS {before:.3g} -> {after:.3g} N, "
                      f"{(before - after) / total:.0%} of the gap above the noise floor "
                      f"{noise:.3g} N)")

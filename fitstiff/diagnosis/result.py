@@ -45,6 +45,18 @@ class Candidate:
             return "< 1e-300"
         return f"{self.p_value:.2g}"
 
+    @property
+    def fitted_text(self) -> str:
+        """``beta 0.21 1/bar [0.2, 0.22]``: the parameters in their units, with their 95 %
+        intervals where the diagnosis gave them (the accepted effects' final fit)."""
+        parts = []
+        for name, p in self.parameters.items():
+            unit = "" if p.get("unit") in ("-", None) else f" {p['unit']}"
+            interval = p.get("interval_95")
+            parts.append(f"{name} {p['value']:.3g}{unit}"
+                         + (f" [{interval[0]:.3g}, {interval[1]:.3g}]" if interval else ""))
+        return ", ".join(parts)
+
     def to_dict(self) -> dict[str, object]:
         out = dataclasses.asdict(self)
         out["regions_improved"] = list(self.regions_improved)
