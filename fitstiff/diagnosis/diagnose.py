@@ -479,9 +479,10 @@ def _pair(sp: SuperProblem, folds, tried: Mapping[str, _Tried], starts: _FoldSta
     Two effects that are both missing can each fail alone, the other's misfit spoiling the
     refit's transfer to a left-out log: pressure-dependent friction with a 2.3 kg inertia
     (withheld pair set ``pressure_friction+inertia/2``) moved the held-out RMS from 2.94 to
-    2.27 and 2.28 N alone (25 % of the gap each), to 1.02 N together. Each pair costs one held-out refit; the rule is the
-    single effects' rule, so an effect that adds nothing to its partner is not named. Each
-    fold starts from its own start of ``a`` with ``b``'s one-step values of that fold on top."""
+    2.27 and 2.28 N alone (25 % of the gap each), to 1.02 N together. Each pair costs one
+    held-out refit; the rule is the single effects' rule, so an effect that adds nothing to
+    its partner is not named. Each fold starts from its own start of ``a`` with ``b``'s
+    one-step values of that fold on top."""
     top = sorted((v for v in tried.values() if v.heldout.converged),
                  key=lambda v: v.score.log_p)[:_MAX_REFITS]
     best = None

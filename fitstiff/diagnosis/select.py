@@ -16,8 +16,9 @@ to a few per cent); and (4) it removes at least ``min_shrink`` of the gap above 
 the lowest held-out RMS is accepted; the screen is then repeated on the enlarged model, until
 none passes. Then each accepted effect is judged as if it had been added last (the final
 model without it against with it, by conditions (3) and (4)) and dropped if it fails: a later
-effect can leave an earlier one nothing of its own (``diagnose._prune``). Condition (1) bounds the false-alarm rate on data with no missing effect by
-``alpha`` as long as the AR(1) noise model holds; (4) keeps a partial mimic of an effect
+effect can leave an earlier one nothing of its own (``diagnose._prune``). Condition (1)
+bounds the false-alarm rate on data with no missing effect by ``alpha`` as long as the AR(1)
+noise model holds; (4) keeps a partial mimic of an effect
 outside the library from being named. Both thresholds are measured in the withheld-effect
 benchmark (``benchmarks/withheld.py``).
 
