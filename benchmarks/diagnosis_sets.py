@@ -71,10 +71,13 @@ def main() -> None:
               f"{r['heldout_rms_before_N']:.3g} -> {r['heldout_rms_after_N']:.3g} N "
               f"(noise {r['noise_N']:.3g}) {r['wall_s']:.0f} s", flush=True)
         if args.json:
-            summary = {"correct": sum(v["correct"] for v in results.values()),
-                       "sets": len(results)}
-            write_atomic(args.json, json.dumps(to_jsonable({"summary": summary,
-                                                            "sets": results}), indent=1))
+            save_sets(args.json, results)
+
+
+def save_sets(path: Path, results: dict[str, dict]) -> None:
+    """The resumable results file of a set benchmark: a summary (sets right) and every set."""
+    summary = {"correct": sum(v["correct"] for v in results.values()), "sets": len(results)}
+    write_atomic(path, json.dumps(to_jsonable({"summary": summary, "sets": results}), indent=1))
 
 
 if __name__ == "__main__":

@@ -15,9 +15,10 @@ import json
 import time
 from pathlib import Path
 
+from diagnosis_sets import save_sets
+
 from fitstiff._testing import independent
 from fitstiff.diagnosis import diagnose
-from fitstiff.output import to_jsonable, write_atomic
 
 #: set name -> (logs, the effect that must be accepted, or None)
 SETS = {
@@ -65,10 +66,7 @@ def main() -> None:
               f"{r['heldout_rms_before_N']:.3g} -> {r['heldout_rms_after_N']:.3g} N "
               f"(noise {r['noise_N']:.3g}) {r['wall_s']:.0f} s", flush=True)
         if args.json:
-            summary = {"correct": sum(v["correct"] for v in results.values()),
-                       "sets": len(results)}
-            write_atomic(args.json, json.dumps(to_jsonable({"summary": summary,
-                                                            "sets": results}), indent=1))
+            save_sets(args.json, results)
 
 
 if __name__ == "__main__":
