@@ -1,5 +1,5 @@
 import sys
 
-from fitstiff.cli import main
+from fitstiff.cli import console
 
-sys.exit(main())
+sys.exit(console())

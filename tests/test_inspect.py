@@ -121,8 +121,8 @@ def test_inspect_imports_neither_jax_nor_matplotlib(tmp_path):
     from conftest import REPO
 
     log = REPO / "data" / "synthetic" / "fig4" / "p6bar_x350mm.csv"
-    code = ("import sys, os; from fitstiff.cli import main; "
-            f"rc = main(['inspect', {str(log)!r}]); "
+    code = ("import sys, os; from fitstiff.cli import console; "
+            f"rc = console(['inspect', {str(log)!r}]); "
             "print(rc, sorted(m for m in ('jax', 'matplotlib', 'emcee', 'h5py') "
             "if m in sys.modules), os.environ.get('JAX_COMPILATION_CACHE_DIR'))")
     env = {k: v for k, v in __import__("os").environ.items() if not k.startswith("JAX_")}

@@ -95,9 +95,19 @@ def _numeric_message(args: argparse.Namespace, exc: RuntimeWarning) -> str:
             "fitstiff inspect")
 
 
+def console(argv: list[str] | None = None) -> int:
+    """The ``fitstiff`` command (and ``python -m fitstiff``): :func:`main` with JAX's
+    persistent compilation cache on. The cache is a setting of the process, so it belongs to
+    the command, not to :func:`main`, which scripts and tests call in their own processes (a
+    test-suite worker that had turned it on by calling :func:`main` crashed reading an
+    executable back from it, in XLA's deserialisation)."""
+    _enable_compilation_cache()    # imports nothing: JAX reads it when a command imports it
+    return main(argv)
+
+
 def main(argv: list[str] | None = None) -> int:
+    """Run one fitstiff command; returns its exit status (0, 1 or 2)."""
     limit_arenas()                 # before JAX starts its threads (fitstiff._malloc)
-    _enable_compilation_cache()
     argv = sys.argv[1:] if argv is None else list(argv)
     parser = build_parser(argv[0] if argv else None)
     args = parser.parse_args(argv)
@@ -122,4 +132,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())
+    sys.exit(console())

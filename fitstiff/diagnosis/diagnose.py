@@ -15,10 +15,12 @@ The steps (DESIGN §6):
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import itertools
 import math
 import time
+from collections import Counter
 from collections.abc import Mapping, Sequence
 
 import numpy as np
@@ -86,6 +88,7 @@ def diagnose(logs: Sequence[Log], *, baseline: str = "chamber+dahl",
         raise InputError(None, f"--min-shrink {min_shrink}", "must lie in [0, 1)",
                          "give e.g. 0.3")
     clock = {"start": time.perf_counter()}
+    spent = Counter()           # seconds per phase of the selection (timing_s)
     names, skipped = candidate_names(baseline, candidates, logs=logs)
     sp = SuperProblem(logs, baseline, names, **problem_kw)
     problem = sp.problem
@@ -105,7 +108,8 @@ def diagnose(logs: Sequence[Log], *, baseline: str = "chamber+dahl",
     theta, base_ok, _, _ = sp.solve(theta, hold, sp.model_mask(active), sp.nuisance_mask(),
                                     weights)
     hold = _maxwell_shape(sp, theta, hold, active)
-    current = held_out(sp, folds, fold_starts(sp, folds), active)
+    with _phase(spent, "baseline_folds"):
+        current = held_out(sp, folds, fold_starts(sp, folds), active)
     fits = _fold_fits(sp, current, active)
     baseline_heldout = current
     clock["baseline"] = time.perf_counter()
@@ -119,8 +123,10 @@ def diagnose(logs: Sequence[Log], *, baseline: str = "chamber+dahl",
         remaining = [c for c in names if c not in accepted]
         if not remaining:
             break
-        scores, hold = screen(sp, theta, hold, active=active, candidates=remaining,
-                              noise=noise, weights=weights, alpha=alpha, min_gain=MIN_GAIN)
+        with _phase(spent, "screens"):
+            scores, hold = screen(sp, theta, hold, active=active, candidates=remaining,
+                                  noise=noise, weights=weights, alpha=alpha,
+                                  min_gain=MIN_GAIN)
         for s in scores:
             first.setdefault(s.effect, s)
         # refitted in batches of _MAX_REFITS, strongest score first: the next batch only
@@ -133,9 +139,10 @@ def diagnose(logs: Sequence[Log], *, baseline: str = "chamber+dahl",
             if k and k % _MAX_REFITS == 0 and any(v.passes for v in tried.values()):
                 break
             entries = sp.elements(s.effect, fitted=True)
-            fold_start = starts.of(s.effect, batch=[t.effect for t in
-                                                    promising[k:k + _MAX_REFITS]])
-            ho = held_out(sp, folds, fold_start, active, extra=entries)
+            with _phase(spent, "refits"):
+                fold_start = starts.of(s.effect, batch=[t.effect for t in
+                                                        promising[k:k + _MAX_REFITS]])
+                ho = held_out(sp, folds, fold_start, active, extra=entries)
             tried[s.effect] = _judge(sp, s, ho, fold_start, current=current,
                                      noise=noise_pooled, min_shrink=min_shrink)
         for s in scores:
@@ -169,8 +176,9 @@ def diagnose(logs: Sequence[Log], *, baseline: str = "chamber+dahl",
                 decided[effect] = dataclasses.replace(decided[effect], why=why)
             new, ho = [chosen.effect], chosen.heldout
         else:
-            pair = _pair(sp, folds, tried, starts, theta, hold, active, weights,
-                         current=current, noise=noise_pooled, min_shrink=min_shrink)
+            with _phase(spent, "refits"):
+                pair = _pair(sp, folds, tried, starts, theta, hold, active, weights,
+                             current=current, noise=noise_pooled, min_shrink=min_shrink)
             if pair is None:
                 break
             new, ho, shrink, theta_c, hold = pair
@@ -192,9 +200,10 @@ def diagnose(logs: Sequence[Log], *, baseline: str = "chamber+dahl",
         # own training fit of it: never a figure chosen by its held-out value
         current = ho
         fits = _fold_fits(sp, current, active)
-    current, theta, hold, active, dropped = _prune(
-        sp, folds, [decided[e].together or (e,) for e in accepted], current, theta, hold,
-        active, weights, noise=noise_pooled, min_shrink=min_shrink)
+    with _phase(spent, "refits"):
+        current, theta, hold, active, dropped = _prune(
+            sp, folds, [decided[e].together or (e,) for e in accepted], current, theta,
+            hold, active, weights, noise=noise_pooled, min_shrink=min_shrink)
     for unit, why in dropped.items():
         for effect in unit:
             decided[effect] = dataclasses.replace(decided[effect], accepted=False, why=why)
@@ -238,8 +247,23 @@ def diagnose(logs: Sequence[Log], *, baseline: str = "chamber+dahl",
         timing_s={"setup": clock["setup"] - clock["start"],
                   "baseline": clock["baseline"] - clock["setup"],
                   "select": clock["select"] - clock["baseline"],
-                  "total": clock["end"] - clock["start"]},
+                  "total": clock["end"] - clock["start"],
+                  # parts: the baseline's held-out folds (in "baseline"), the screens on all
+                  # data and the candidates' held-out refits with their fold starts (in
+                  # "select"); compilation happens inside whichever part first needs it
+                  **{name: float(spent[name])
+                     for name in ("baseline_folds", "screens", "refits")}},
         heldout={"before": baseline_heldout.residuals, "after": current.residuals})
+
+
+@contextlib.contextmanager
+def _phase(spent: Counter, name: str):
+    """Add the wall time of the block to ``spent[name]``."""
+    start = time.perf_counter()
+    try:
+        yield
+    finally:
+        spent[name] += time.perf_counter() - start
 
 
 @dataclasses.dataclass(frozen=True)

@@ -15,6 +15,11 @@ predictions) all call the same compiled functions:
 - :meth:`SuperProblem.jacobian` - residuals and their Jacobian with respect to every model
   parameter in physical coordinates and every nuisance, the input of the score screen;
 - :meth:`SuperProblem.forces` - the predicted force of every log.
+
+Solves and forces in which no candidate that makes the model expensive to run is live (free,
+or held away from its null) run on a lighter compiled problem, the super-model without those
+candidates (:func:`_heavy`): they add nothing at their nulls, so the result is the same, at a
+fraction of the cost (see :class:`SuperProblem`).
 """
 
 from __future__ import annotations
@@ -33,6 +38,8 @@ from fitstiff.log import Log
 from fitstiff.model import parse_spec
 from fitstiff.problem import Problem
 from fitstiff.terms import EFFECTS, FRICTION_BASES, TERMS
+from fitstiff.terms.base import Modifier, SeriesTerm
+from fitstiff.terms.chamber import Chamber
 
 __all__ = ["CANDIDATES", "SuperProblem", "candidate_names", "spec_token"]
 
@@ -54,6 +61,16 @@ FIXED_SHAPE = ("maxwell_slip",)
 #: the cost); the decisions compare held-out RMS values at a resolution of 5 % of the noise
 #: floor, far coarser than the 1e-5 relative cost change at which a solve stops
 _RTOL = 1e-5
+
+
+def _heavy(term) -> bool:
+    """A term that makes every sample of a model a step of its scan: a modifier of the
+    chamber (the polytropic chamber otherwise runs over all samples at once) or a series
+    compliance (couples every term to the piston motion). On 32 000 + 3 x 6 400 samples the
+    super-model's residuals took 99 ms, without heat_transfer and leakage 7 ms, the baseline
+    chamber+dahl 1 ms (``benchmarks/diagnosis_speed.py --size real``, issue 31)."""
+    return isinstance(term, SeriesTerm) or (isinstance(term, Modifier)
+                                             and issubclass(term.targets, Chamber))
 
 
 def spec_token(effect: str) -> str:
@@ -180,17 +197,20 @@ class SuperProblem:
         self.units = par.units()
         self.series = self.problem.residual_series()
         self.n_residuals = max(s.span.stop for s in self.series)
-        per_log = len(self.problem.nuisance_names)
         largest = max((self.elements(c, fitted=True).size for c in self.candidates),
                       default=0)
-        self._lengths = {per_log,
-                         int(self.model_mask(self.baseline_terms).sum()) + largest
-                         + (self.size - self.n_model)}
-        self._lock = threading.Lock()
+        self._full = _Solver(self.problem, int(self.model_mask(self.baseline_terms).sum())
+                             + largest)
         self._jac = self.problem.compiled(_jacobian, n_model=self.n_model)
-        self._forces = self.problem.compiled(_forces)
         self._column = self.problem.compiled(_column)
-        self._solve = self.problem.compiled(_masked_solve)
+        heavy = {t.name for t in model.terms if _heavy(t)} & set(self.candidates)
+        self._heavy = np.array([o.term in heavy for o in self.owners])
+        self._heavy_tested = np.flatnonzero(self._heavy & np.array([o.tested
+                                                                      for o in self.owners]))
+        self._nulls = np.array([o.null for o in self.owners])
+        light = (_Light(self, baseline, [c for c in self.candidates if c not in heavy],
+                        problem_kw) if heavy else None)
+        self._light = light if light is not None and light.maps else None
 
     # -- masks ------------------------------------------------------------------------------
     def model_mask(self, terms: Sequence[str]) -> np.ndarray:
@@ -278,21 +298,23 @@ class SuperProblem:
         compiled: the largest model + nuisance set of the diagnosis, and one log's nuisances
         (the held-out predictions); a model enlarged by accepted effects beyond the first adds
         one more (rounded up to a multiple of 4, so a greedy round compiles at most once).
+        With no heavy candidate (:func:`_heavy`) live (none free, all held at their nulls),
+        the solve runs on the lighter problem without them (:class:`_Light`).
         """
-        free = np.flatnonzero(np.concatenate([free_model, free_nuisance]))
-        with self._lock:       # held-out folds solve from two threads
-            size = next((k for k in sorted(self._lengths) if k >= free.size), None)
-            if size is None:       # accepted effects enlarged the model: one more length
-                size = 4 * -(-free.size // 4)
-                self._lengths.add(size)
-        index = np.full(size, self.size)          # the padding slot: theta[size] is unused
-        index[:free.size] = free
-        theta_pad = np.append(np.asarray(theta0, dtype=float), 0.0)
-        theta, result, steps, cost = self._solve(
-            jnp.asarray(theta_pad), jnp.asarray(index), jnp.asarray(hold),
-            jnp.asarray(free_model), jnp.asarray(weights), max_steps)
-        ok = int(result) == CONVERGED and bool(np.isfinite(cost))
-        return np.asarray(theta)[:self.size], ok, int(steps), float(cost)
+        theta0 = np.asarray(theta0, dtype=float)
+        hold, free_model = np.asarray(hold, dtype=float), np.asarray(free_model, dtype=bool)
+        if self._light is None or self._live_heavy(hold, free_model):
+            return self._full.solve(theta0, hold, free_model, free_nuisance, weights,
+                                    max_steps=max_steps)
+        return self._light.solve(theta0, hold, free_model, free_nuisance, weights,
+                                 max_steps=max_steps)
+
+    def _live_heavy(self, x, free_model=None) -> bool:
+        """Whether a heavy candidate is in the model: free, or held away from its null."""
+        if free_model is not None and np.any(free_model & self._heavy):
+            return True
+        k = self._heavy_tested
+        return bool(np.any(x[k] != self._nulls[k]))
 
     def jacobian(self, x, theta) -> tuple[np.ndarray, np.ndarray]:
         """Residuals and ``d residuals / d (x, nuisances)`` at physical model values ``x``."""
@@ -306,7 +328,113 @@ class SuperProblem:
 
     def forces(self, x, theta) -> list[np.ndarray]:
         """Predicted force (N) of every log, unpadded, in log order."""
-        return self.problem.unpad(self._forces(jnp.asarray(x), jnp.asarray(theta)))
+        x = np.asarray(x, dtype=float)
+        if self._light is None or self._live_heavy(x):
+            return self._full.forces(x, theta)
+        return self._light.forces(x, theta)
+
+
+class _Solver:
+    """One compiled problem's masked solves and predicted forces (the super-model's, or the
+    lighter one's of :class:`_Light`). ``largest``: the most model entries a solve frees."""
+
+    def __init__(self, problem: Problem, largest: int):
+        self.problem = problem
+        self.size = problem.size
+        n_nuisance = problem.size - problem.par.size
+        self._lengths = {len(problem.nuisance_names), largest + n_nuisance}
+        self._lock = threading.Lock()
+        # the held-out folds call the compiled functions from two threads; the first call
+        # of each (function, length) traces and compiles, and is made by one thread alone
+        self._compiling = threading.Lock()
+        self._warm: set[tuple] = set()
+        self._solve = problem.compiled(_masked_solve)
+        self._forces = problem.compiled(_forces)
+
+    def solve(self, theta0, hold, free_model, free_nuisance, weights, *, max_steps=200):
+        """:meth:`SuperProblem.solve` on this problem."""
+        free = np.flatnonzero(np.concatenate([free_model, free_nuisance]))
+        with self._lock:       # held-out folds solve from two threads
+            size = next((k for k in sorted(self._lengths) if k >= free.size), None)
+            if size is None:       # accepted effects enlarged the model: one more length
+                size = 4 * -(-free.size // 4)
+                self._lengths.add(size)
+        index = np.full(size, self.size)          # the padding slot: theta[size] is unused
+        index[:free.size] = free
+        theta_pad = np.append(np.asarray(theta0, dtype=float), 0.0)
+        theta, result, steps, cost = self._once(
+            ("solve", size, max_steps), self._solve, jnp.asarray(theta_pad),
+            jnp.asarray(index), jnp.asarray(hold), jnp.asarray(free_model),
+            jnp.asarray(weights), max_steps)
+        ok = int(result) == CONVERGED and bool(np.isfinite(cost))
+        return np.asarray(theta)[:self.size], ok, int(steps), float(cost)
+
+    def forces(self, x, theta) -> list[np.ndarray]:
+        """Predicted force (N) of every log, unpadded, in log order."""
+        return self.problem.unpad(self._once(("forces",), self._forces, jnp.asarray(x),
+                                             jnp.asarray(theta)))
+
+    def _once(self, key, fn, *args):
+        """``fn(*args)``; its first call per ``key`` (a compilation) by one thread at a time.
+        Compilation is not made concurrent on purpose: the other thread waits for it and
+        then reuses it (a test-suite worker once crashed in a diagnosis's held-out folds, in
+        XLA; two threads compiling at once is the one thing these threads shared)."""
+        if key in self._warm:
+            return fn(*args)
+        with self._compiling:
+            out = jax.block_until_ready(fn(*args))
+            self._warm.add(key)
+        return out
+
+
+class _Light:
+    """The super-model without its heavy candidates (:func:`_heavy`), compiled on its own:
+    a solve or prediction in which none of them is live runs here, its entries mapped from
+    and back to the super-model's by term and parameter name. At their nulls the heavy
+    candidates add nothing, so the result is the super-model's (checked at construction on
+    the start values: the parameters' transforms must agree)."""
+
+    def __init__(self, sp: SuperProblem, baseline: str, keep: Sequence[str], problem_kw):
+        spec = "+".join([baseline] + [spec_token(c) for c in keep])
+        problem = Problem(sp.problem.logs, spec, segmentations=sp.problem.segmentations,
+                          **problem_kw)
+        where = {(o.term, o.name): k for k, o in enumerate(sp.owners)}
+        terms = problem.model.terms
+        self.model = np.array([where[(terms[e.term_index].name, e.name)]
+                               for e in problem.par.entries], dtype=int)
+        n_logs = problem.n_logs
+        super_names = sp.problem.nuisance_names
+        self.nuisance = np.array([super_names.index(name) * n_logs + i
+                                  for name in problem.nuisance_names for i in range(n_logs)],
+                                 dtype=int)
+        self.n_model, self.sp = sp.n_model, sp
+        same_layout = ([(r.log, r.channel, r.span) for r in problem.residual_series()]
+                       == [(r.log, r.channel, r.span) for r in sp.series])
+        theta, _ = sp.start()
+        same_transforms = np.allclose(
+            np.asarray(problem.par.physical(jnp.asarray(theta[self.model]))),
+            np.asarray(sp.problem.par.physical(jnp.asarray(theta[:sp.n_model])))[self.model],
+            rtol=1e-12, atol=0.0)
+        #: False when the light problem does not map onto the super-model (then unused)
+        self.maps = same_layout and same_transforms
+        largest = max((sp.elements(c, fitted=True).size for c in keep), default=0)
+        self.solver = _Solver(problem, int(sp.model_mask(sp.baseline_terms).sum()) + largest)
+
+    def _theta(self, theta) -> np.ndarray:
+        theta = np.asarray(theta, dtype=float)
+        return np.concatenate([theta[self.model], theta[self.n_model + self.nuisance]])
+
+    def solve(self, theta0, hold, free_model, free_nuisance, weights, *, max_steps=200):
+        th, ok, steps, cost = self.solver.solve(
+            self._theta(theta0), hold[self.model], free_model[self.model],
+            np.asarray(free_nuisance, dtype=bool)[self.nuisance], weights, max_steps=max_steps)
+        out = np.array(theta0, dtype=float)
+        out[self.model] = th[:self.model.size]
+        out[self.n_model + self.nuisance] = th[self.model.size:]
+        return out, ok, steps, cost
+
+    def forces(self, x, theta) -> list[np.ndarray]:
+        return self.solver.forces(x[self.model], self._theta(theta))
 
 
 def _jacobian(p: Problem, x, theta, *, n_model: int):
