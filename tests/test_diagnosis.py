@@ -136,6 +136,45 @@ def test_super_model_at_its_nulls_is_the_baseline():
     np.testing.assert_allclose(r_super, r_base, rtol=1e-9, atol=1e-9)
 
 
+def test_a_solve_without_the_heavy_candidates_equals_the_super_models():
+    """Issue 31's speed: a solve or prediction in which heat_transfer and leakage are at their
+    nulls runs on the super-model without them (their chamber modifiers put every sample into
+    the scan). A super-model without heavy candidates (viscous, stribeck: no lighter problem)
+    and one with them give the same fit of the baseline + viscous, fold by fold, and the same
+    held-out prediction; with heat_transfer freed the solve runs on the full model and moves
+    it."""
+    from fitstiff.diagnosis.select import fold_starts, folds_for
+    from fitstiff.diagnosis.supermodel import SuperProblem
+
+    logs = _logs("chamber+dahl+viscous", {"n": 1.4, "sigma0": 40, "Fc": 18, "c": 100})
+    light = SuperProblem(logs, "chamber+dahl", ["viscous", "stribeck"])
+    heavy = SuperProblem(logs, "chamber+dahl", ["viscous", "stribeck", "heat_transfer",
+                                                "leakage"])
+    assert light.light_spec is None
+    assert heavy.light_spec == "chamber+dahl+viscous+stribeck"
+    active = ["chamber", "dahl", "viscous"]
+    common = [heavy.problem.par.names.index(n) for n in light.problem.par.names]
+    for sp_fold_a, sp_fold_b, fold in zip(fold_starts(light, folds_for(light)),
+                                          fold_starts(heavy, folds_for(heavy)),
+                                          folds_for(light)):
+        a = light.solve(sp_fold_a.theta, sp_fold_a.hold, light.model_mask(active),
+                        light.nuisance_mask(), fold.training(light))
+        b = heavy.solve(sp_fold_b.theta, sp_fold_b.hold, heavy.model_mask(active),
+                        heavy.nuisance_mask(), fold.training(heavy))
+        assert a[1] and b[1]
+        assert b[3] == pytest.approx(a[3], rel=1e-9)                  # the cost
+        np.testing.assert_allclose(b[0][common], a[0][:light.n_model], rtol=1e-6, atol=1e-9)
+        xa = np.asarray(light.physical(a[0], sp_fold_a.hold, light.model_mask(active)))
+        xb = np.asarray(heavy.physical(b[0], sp_fold_b.hold, heavy.model_mask(active)))
+        for fa, fb in zip(light.forces(xa, a[0]), heavy.forces(xb, b[0])):
+            np.testing.assert_allclose(fb, fa, rtol=1e-9, atol=1e-9)
+    theta, hold = heavy.start()
+    k = heavy.elements("heat_transfer")
+    moved = heavy.solve(theta, hold, heavy.model_mask(active + ["heat_transfer"]),
+                        heavy.nuisance_mask(), heavy.entry_weights())
+    assert moved[1] and not np.allclose(moved[0][k], theta[k])
+
+
 @pytest.mark.parametrize("candidates, message", [
     ("viscous,nonsense", "is not a candidate effect"),
     ("dahl", "is not a candidate effect"),

@@ -608,7 +608,7 @@ def _refit_start(sp: SuperProblem, s: Score, theta, hold, active, weights):
     w = np.asarray(weights)
 
     def cost(start):
-        r, _ = sp.column(start[1], start[0], np.zeros(sp.n_model))
+        r = sp.residuals(start[1], start[0])
         c = float(np.sum((r * w) ** 2))
         return c if math.isfinite(c) else math.inf
 

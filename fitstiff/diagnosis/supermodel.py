@@ -211,6 +211,9 @@ class SuperProblem:
         light = (_Light(self, baseline, [c for c in self.candidates if c not in heavy],
                         problem_kw) if heavy else None)
         self._light = light if light is not None and light.maps else None
+        #: the spec of the lighter problem that solves run on when no heavy candidate is live
+        #: (``None``: every solve runs on the super-model)
+        self.light_spec = self._light.spec if self._light is not None else None
 
     # -- masks ------------------------------------------------------------------------------
     def model_mask(self, terms: Sequence[str]) -> np.ndarray:
@@ -333,6 +336,13 @@ class SuperProblem:
             return self._full.forces(x, theta)
         return self._light.forces(x, theta)
 
+    def residuals(self, x, theta) -> np.ndarray:
+        """The residual vector at physical model values ``x`` (unweighted)."""
+        x = np.asarray(x, dtype=float)
+        if self._light is None or self._live_heavy(x):
+            return self._full.residuals(x, theta)
+        return self._light.residuals(x, theta)
+
 
 class _Solver:
     """One compiled problem's masked solves and predicted forces (the super-model's, or the
@@ -350,6 +360,7 @@ class _Solver:
         self._warm: set[tuple] = set()
         self._solve = problem.compiled(_masked_solve)
         self._forces = problem.compiled(_forces)
+        self._residuals = problem.compiled(_residuals)
 
     def solve(self, theta0, hold, free_model, free_nuisance, weights, *, max_steps=200):
         """:meth:`SuperProblem.solve` on this problem."""
@@ -374,6 +385,11 @@ class _Solver:
         return self.problem.unpad(self._once(("forces",), self._forces, jnp.asarray(x),
                                              jnp.asarray(theta)))
 
+    def residuals(self, x, theta) -> np.ndarray:
+        """The residual vector at physical model values ``x``."""
+        return np.asarray(self._once(("residuals",), self._residuals, jnp.asarray(x),
+                                     jnp.asarray(theta)))
+
     def _once(self, key, fn, *args):
         """``fn(*args)``; its first call per ``key`` (a compilation) by one thread at a time.
         Compilation is not made concurrent on purpose: the other thread waits for it and
@@ -396,6 +412,7 @@ class _Light:
 
     def __init__(self, sp: SuperProblem, baseline: str, keep: Sequence[str], problem_kw):
         spec = "+".join([baseline] + [spec_token(c) for c in keep])
+        self.spec = spec
         problem = Problem(sp.problem.logs, spec, segmentations=sp.problem.segmentations,
                           **problem_kw)
         where = {(o.term, o.name): k for k, o in enumerate(sp.owners)}
@@ -436,6 +453,9 @@ class _Light:
     def forces(self, x, theta) -> list[np.ndarray]:
         return self.solver.forces(x[self.model], self._theta(theta))
 
+    def residuals(self, x, theta) -> np.ndarray:
+        return self.solver.residuals(x[self.model], self._theta(theta))
+
 
 def _jacobian(p: Problem, x, theta, *, n_model: int):
     """Residuals and ``d residuals / d (x, nuisances)`` at physical model values ``x``."""
@@ -449,6 +469,10 @@ def _jacobian(p: Problem, x, theta, *, n_model: int):
 
 def _column(p: Problem, x, theta, tangent):
     return jax.jvp(lambda x: p.residuals_physical(x, theta), (x,), (tangent,))
+
+
+def _residuals(p: Problem, x, theta):
+    return p.residuals_physical(x, theta)
 
 
 def _forces(p: Problem, x, theta):
