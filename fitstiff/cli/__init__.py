@@ -98,9 +98,10 @@ def _numeric_message(args: argparse.Namespace, exc: RuntimeWarning) -> str:
 def console(argv: list[str] | None = None) -> int:
     """The ``fitstiff`` command (and ``python -m fitstiff``): :func:`main` with JAX's
     persistent compilation cache on. The cache is a setting of the process, so it belongs to
-    the command, not to :func:`main`, which scripts and tests call in their own processes (a
-    test-suite worker that had turned it on by calling :func:`main` crashed reading an
-    executable back from it, in XLA's deserialisation)."""
+    the command, not to :func:`main`, which scripts, notebooks and tests call in processes
+    that live long: every executable JAX loads back from the cache keeps its memory maps in
+    JAX's in-memory caches, and a test-suite worker that had turned it on by calling
+    :func:`main` passed the kernel's limit on maps and segfaulted loading one more."""
     _enable_compilation_cache()    # imports nothing: JAX reads it when a command imports it
     return main(argv)
 

@@ -391,10 +391,9 @@ class _Solver:
                                      jnp.asarray(theta)))
 
     def _once(self, key, fn, *args):
-        """``fn(*args)``; its first call per ``key`` (a compilation) by one thread at a time.
-        Compilation is not made concurrent on purpose: the other thread waits for it and
-        then reuses it (a test-suite worker once crashed in a diagnosis's held-out folds, in
-        XLA; two threads compiling at once is the one thing these threads shared)."""
+        """``fn(*args)``; its first call per ``key`` (a compilation) by one thread at a time:
+        the other fold's thread waits and reuses it instead of tracing and compiling the same
+        function a second time beside it."""
         if key in self._warm:
             return fn(*args)
         with self._compiling:
@@ -424,7 +423,7 @@ class _Light:
         self.nuisance = np.array([super_names.index(name) * n_logs + i
                                   for name in problem.nuisance_names for i in range(n_logs)],
                                  dtype=int)
-        self.n_model, self.sp = sp.n_model, sp
+        self.n_model = sp.n_model
         same_layout = ([(r.log, r.channel, r.span) for r in problem.residual_series()]
                        == [(r.log, r.channel, r.span) for r in sp.series])
         theta, _ = sp.start()
