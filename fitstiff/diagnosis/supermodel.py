@@ -406,8 +406,8 @@ class _Light:
     """The super-model without its heavy candidates (:func:`_heavy`), compiled on its own:
     a solve or prediction in which none of them is live runs here, its entries mapped from
     and back to the super-model's by term and parameter name. At their nulls the heavy
-    candidates add nothing, so the result is the super-model's (checked at construction on
-    the start values: the parameters' transforms must agree)."""
+    candidates add nothing, so the result is the super-model's (checked at construction: the
+    layout of the residuals and the parameters' transforms must agree)."""
 
     def __init__(self, sp: SuperProblem, baseline: str, keep: Sequence[str], problem_kw):
         spec = "+".join([baseline] + [spec_token(c) for c in keep])
@@ -426,11 +426,12 @@ class _Light:
         self.n_model = sp.n_model
         same_layout = ([(r.log, r.channel, r.span) for r in problem.residual_series()]
                        == [(r.log, r.channel, r.span) for r in sp.series])
-        theta, _ = sp.start()
+        # the transforms agree where they matter, at any one point (no data-driven start:
+        # that would repeat the super-model's initial guess)
+        probe = jnp.linspace(-1.0, 1.0, sp.n_model)
         same_transforms = np.allclose(
-            np.asarray(problem.par.physical(jnp.asarray(theta[self.model]))),
-            np.asarray(sp.problem.par.physical(jnp.asarray(theta[:sp.n_model])))[self.model],
-            rtol=1e-12, atol=0.0)
+            np.asarray(problem.par.physical(probe[self.model])),
+            np.asarray(sp.problem.par.physical(probe))[self.model], rtol=1e-12, atol=0.0)
         #: False when the light problem does not map onto the super-model (then unused)
         self.maps = same_layout and same_transforms
         largest = max((sp.elements(c, fitted=True).size for c in keep), default=0)
