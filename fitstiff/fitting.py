@@ -221,14 +221,9 @@ class FitResult:
             err = "fixed" if p.get("fixed") else ("n/d" if p["stderr"] is None
                                                  else f"{p['stderr']:.4g}")
             lines.append(f"  {name:<22}{p['value']:>14.6g}{err:>12}  {p['unit']}")
-        if self.model.has("pressure_friction"):
-            term = self.model.term("pressure_friction")
-            source = ("as given in the model" if term.p_ref_given else
-                      "the mean seal pressure of these logs; set it with "
-                      "pressure_friction:p_ref=BAR")
-            lines.append(f"  (friction levels such as Fc apply at p_ref = {term.p_ref / 1e5:.3g} "
-                         f"bar gauge, {source}; beta is per bar of the mean of the two chamber "
-                         "pressures)")
+        for term in self.model.terms:
+            if term.reading():
+                lines.append(f"  ({term.name}: {term.reading()})")
         lines.append(f"  {'derived':<22}")
         for name, (v, e) in self.derived.items():
             label, unit = split_unit(name)

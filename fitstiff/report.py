@@ -738,7 +738,8 @@ def _diagnosis_tables(result) -> str:
                      _fmt(c.heldout_rms_before_N, 4), _fmt(c.heldout_rms_after_N, 4),
                      _fmt(c.shrink, 2), "yes" if c.accepted else "no",
                      ", ".join(c.regions_improved) or "-", detect,
-                     c.fitted_text if c.accepted else c.why])
+                     (c.fitted_text + (f" ({c.reading})" if c.reading else ""))
+                     if c.accepted else c.why])
     table = _table(["candidate", "score", "p", "held-out before N", "held-out after N",
                     "shrink", "accepted", "regions improved", "detectable at 80 %",
                     "fitted (95 % interval) / why not"],

@@ -137,11 +137,34 @@ def test_diagnosis_of_the_four_logs_accepts_pressure_friction_only(candidates):
     assert result.unexplained                         # a gap is left, and it says so
     accepted = next(c for c in result.candidates if c.effect == "pressure_friction")
     assert 0.1 < accepted.parameters["beta"]["value"] < 0.4     # 1/bar: +10-40 % per bar
+    # issue 31: what beta and Fc refer to, beside them (a one-side-vented rig reads per bar
+    # of supply)
+    assert "per bar of the mean of the two chamber pressures" in accepted.reading
+    assert "beta/2 per bar of supply" in accepted.reading and "p_ref = " in accepted.reading
+    assert any(line.startswith("pressure_friction: friction levels") for line in
+               result.verdict)
+    # issue 31: the heat maps (RMS above the noise in N, one scale for before and after) show
+    # the change: the z-score saturated every cell of these logs (values up to 1.8e5)
+    from fitstiff.diagnosis.gap import region_summary
+    from fitstiff.noise import NoiseFloor
+    from fitstiff.problem import Problem
+    from fitstiff.segmentation import segment
+
+    problem = Problem(logs, result.baseline)
+    noise = [NoiseFloor(float(result.noise_N[log.name]["sigma_N"]),
+                        float(result.noise_N[log.name]["rho"])) for log in logs]
+    masks = [w > 0 for w in problem.sample_weights]
+    tables = [region_summary(result.heldout[which], [segment(log) for log in logs], noise,
+                             masks, value="excess_N").to_numpy() for which in ("before", "after")]
+    top = max(np.nanmax(t) for t in tables)
+    assert 0.3 < top < 10                                       # N: a readable scale
+    changed = np.abs(tables[0] - tables[1]) > 0.1 * top
+    assert changed[np.isfinite(tables[0])].mean() > 0.25        # the change shows on it
+    assert (tables[0][np.isfinite(tables[0])] >= 0.99 * top).sum() <= 1     # not saturated
     # issue 31: every held-out figure equals plain fits (fit on three logs, the fourth
     # predicted with only its own nuisances fitted), per log within 2 %; before the fold
     # rule the second round's asymmetry reported 0.813 N held out, plain fits give 1.09 N
     from fitstiff._testing.heldout import leave_one_log_out, pooled
-    from fitstiff.problem import Problem
 
     assert result.gap["heldout_rms_per_log_N"] == pytest.approx(
         leave_one_log_out(logs, result.baseline), rel=0.02)

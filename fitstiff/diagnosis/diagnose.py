@@ -194,7 +194,8 @@ def diagnose(logs: Sequence[Log], *, baseline: str = "chamber+dahl",
         for effect in new:
             values = {sp.owners[k].name: float(x[k]) for k in sp.elements(effect)}
             decided[effect] = dataclasses.replace(decided[effect], accepted=True, why="",
-                                                  parameters=_display(sp, values, "fit"))
+                                                  parameters=_display(sp, values, "fit"),
+                                                  reading=problem.model.term(effect).reading())
             accepted.append(effect)
         # the accepted model's held-out figure is its refit's, and each fold goes on from its
         # own training fit of it: never a figure chosen by its held-out value
@@ -718,6 +719,7 @@ def _verdict(baseline, accepted, decided, gap, still, noise) -> list[str]:
         lines.append("; ".join(parts) + f" (held-out RMS {before:.3g} -> {after:.3g} N, "
                      f"{(before - after) / total:.0%} of the gap above the noise floor "
                      f"{noise:.3g} N)")
+        lines += [f"{e}: {decided[e].reading}" for e in accepted if decided[e].reading]
     if still.empty:
         lines.append("nothing stays above the noise floor")
     else:

@@ -36,6 +36,10 @@ class Candidate:
     #: the effects accepted together with it in one step (its refit, held-out RMS and shrink
     #: are theirs together), when none passed alone; empty otherwise
     together: tuple[str, ...] = ()
+    #: what the fitted values refer to where the units do not say it
+    #: (:meth:`fitstiff.terms.base.Term.reading`: pressure_friction's reference pressure and
+    #: per-bar basis), for accepted effects
+    reading: str = ""
 
     @property
     def p_text(self) -> str:

@@ -152,6 +152,12 @@ class Term(eqx.Module):
         """Declared free parameters (field names on this module)."""
         return ()
 
+    def reading(self) -> str:
+        """What the fitted values refer to, where a unit alone does not say it (a reference
+        pressure, a per-what): one sentence shown beside them by fit, diagnose and the
+        reports; empty when the units say it all."""
+        return ""
+
     def init(self, drive):
         """Scan state at the first sample (a pytree; ``()`` for stateless terms)."""
         return ()

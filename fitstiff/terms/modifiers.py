@@ -110,6 +110,15 @@ class PressureFriction(Modifier):
         return (Param("beta", "1/bar", 1e-5, -2e-5, 5e-5,
                       "relative friction rise per bar of mean chamber pressure", null=0.0),)
 
+    def reading(self) -> str:
+        source = ("as given in the model" if self.p_ref_given else
+                  "the mean seal pressure of the logs, rounded; set it with "
+                  "pressure_friction:p_ref=BAR")
+        return (f"friction levels such as Fc apply at p_ref = {self.p_ref / 1e5:.3g} bar gauge "
+                f"({source}); beta is per bar of the mean of the two chamber pressures, so on "
+                "a rig with one chamber vented and the other at supply it is beta/2 per bar "
+                "of supply")
+
     def modulate(self, state, s: Step, drive):
         p_seal = 0.5 * ((s.p_a if drive.modes[0] == "measured" else
                          drive.p_a0 if drive.modes[0] == "closed" else drive.p_amb)
