@@ -16,10 +16,11 @@ import importlib
 __version__ = "0.1.0"
 
 from fitstiff.errors import FitstiffError, InputError  # noqa: E402
-from fitstiff.log import Log, Rig  # noqa: E402
 
-#: public name -> the module that defines it
+#: public name -> the module that defines it (``import fitstiff`` imports no NumPy either:
+#: the command line's first instant, in which a Ctrl-C must end it cleanly, stays short)
 _LAZY = {
+    "Log": "fitstiff.log", "Rig": "fitstiff.log",
     "load_log": "fitstiff.loading", "load_logs": "fitstiff.loading",
     "segment": "fitstiff.segmentation", "Segmentation": "fitstiff.segmentation",
     "build_model": "fitstiff.model", "Model": "fitstiff.model",
@@ -30,7 +31,7 @@ _LAZY = {
     "write_report": "fitstiff.report",
 }
 
-__all__ = ["FitstiffError", "InputError", "Log", "Rig", "__version__", *_LAZY]
+__all__ = ["FitstiffError", "InputError", "__version__", *_LAZY]
 
 
 def __getattr__(name: str):

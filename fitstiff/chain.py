@@ -51,6 +51,7 @@ import numpy as np
 
 from fitstiff.errors import InputError
 from fitstiff.likelihood import NoiseModel, noise_from_dict
+from fitstiff.output import ensure_room
 from fitstiff.params import Parameterization
 from fitstiff.priors import Priors
 from fitstiff.problem import Problem
@@ -211,15 +212,18 @@ class ChainBackend(emcee.backends.Backend):
         if self._pending:
             coords, log_prob, accepted, states, blobs = zip(*self._pending)
             _, keys, pos, has_gauss, cached = states[-1][:5]
-            series = [("chain", coords), ("log_prob", log_prob)]
+            series = [("chain", np.stack(coords)), ("log_prob", np.stack(log_prob))]
             if self.has_blobs():
-                series.append(("blobs", blobs))
+                series.append(("blobs", np.stack(blobs)))
+            # never start a write the disk cannot finish: the file keeps its last batch
+            ensure_room(self.path.parent, 2 * sum(v.nbytes for _, v in series),
+                        what=f"the next {len(coords)} steps of the chain")
             with h5py.File(self.path, "a") as f:
                 g = f[self.GROUP]
                 start, k = int(g["steps"][()]), len(coords)
                 for name, values in series:
                     g[name].resize(start + k, axis=0)
-                    g[name][start:] = np.stack(values)
+                    g[name][start:] = values
                 g["accepted"][...] = g["accepted"][...] + np.sum(accepted, axis=0)
                 g["rng_keys"][...] = keys
                 g["rng_rest"][...] = (pos, has_gauss, cached)

@@ -26,6 +26,8 @@ from collections.abc import Callable, Sequence
 import emcee
 import numpy as np
 
+from fitstiff._interrupts import deferred
+
 __all__ = ["Check", "check_convergence", "integrated_time", "run_chunks", "tau_change_sd"]
 
 _TAU_STABLE = 0.05          # the autocorrelation times may change by this between checks,
@@ -53,8 +55,10 @@ def run_chunks(sampler: emcee.EnsembleSampler, state, *, names: Sequence[str], s
 
     done = sampler.iteration
     check = check_convergence(sampler, names, tau_multiple, check_every) if done else None
-    with tqdm(total=steps, initial=done, disable=not progress, desc="posterior",
-              unit="step", file=sys.stderr) as bar:
+    # under the command line a signal is only recorded here, and ``interrupted`` reports it
+    # after the step: raised inside the log-posterior, emcee printed its traceback
+    with deferred(), tqdm(total=steps, initial=done, disable=not progress, desc="posterior",
+                          unit="step", file=sys.stderr) as bar:
         while not (check and check.converged) and done < steps:
             stop = min(steps, (done // check_every + 1) * check_every)
             for latest in sampler.sample(state, iterations=stop - done, store=True):

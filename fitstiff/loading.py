@@ -109,7 +109,35 @@ def load_logs(paths: Iterable[str | os.PathLike[str]], *,
     if not paths:
         raise InputError(None, "log files", "none given", "give at least one CSV log file")
     layout = _layout(columns=columns, no_header=no_header, delimiter=delimiter, fmt=fmt)
-    return [_load(Path(p), layout, dict(rig_overrides or {})) for p in paths]
+    logs = [_load(Path(p), layout, dict(rig_overrides or {})) for p in paths]
+    _refuse_repeats(paths)
+    return logs
+
+
+def _refuse_repeats(paths: Sequence[str | os.PathLike[str]]) -> None:
+    """One file, or two files of the same content, given twice would be fitted as two logs
+    of independent data: every standard error shrinks by sqrt(2) without a word."""
+    files: dict[str, str] = {}
+    sizes: dict[int, list[str]] = {}
+    for p in map(str, paths):
+        real = os.path.realpath(p)
+        repeat = files.get(real)
+        same = "is the same file as"
+        if repeat is None:
+            size = os.path.getsize(real)
+            same = "has the same content as"
+            repeat = next((q for q in sizes.get(size, []) if _digest(q) == _digest(p)), None)
+            sizes.setdefault(size, []).append(p)
+        if repeat is not None:
+            raise InputError(p, "log", f"{same} {repeat} (given twice)",
+                             "give each log once: a repeated log counts its data twice and "
+                             "shrinks every standard error by sqrt(2)")
+        files[real] = p
+
+
+def _digest(path: str | os.PathLike[str]) -> str:
+    with open(path, "rb") as fh:
+        return hashlib.file_digest(fh, "sha256").hexdigest()
 
 
 # ---------------------------------------------------------------------------------- options
@@ -135,6 +163,12 @@ def _rig(path: Path, layout: Format, overrides: Mapping[str, object]
     vented = layout.vented or frozenset()
     for layer, source in ((read_json_object(sidecar) if has_sidecar else {}, str(sidecar)),
                           (overrides, _OVERRIDE_SOURCE)):
+        if source != _OVERRIDE_SOURCE:
+            for key, value in layer.items():
+                if value is None and not key.startswith("_"):
+                    raise InputError(source, f"key '{key}'", "is null",
+                                     "give a number in the key's unit, or leave the key out "
+                                     "to leave the value unset")
         values = {k: v for k, v in layer.items() if not k.startswith("_") and v is not None}
         if "vented" in values:
             vented = parse_vented(values.pop("vented"), where=source)
@@ -220,12 +254,20 @@ def _read(path: Path) -> bytes:
 
 def _lines(raw: bytes, where: str) -> list[str]:
     """Decoded lines (BOM removed, any line end), trailing blank lines dropped."""
+    utf16 = _utf16(raw)
+    if utf16:
+        raise InputError(where, "file", f"is not UTF-8 (it looks like {utf16})",
+                         "save the file as UTF-8 (plain ASCII numbers are fine)")
     try:
         text = raw.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
         line = raw[:exc.start].count(b"\n") + 1
         raise InputError(where, f"line {line}", f"byte 0x{raw[exc.start]:02x} is not UTF-8",
                          "save the file as UTF-8 (plain ASCII numbers are fine)") from None
+    if "\x00" in text:
+        line = text[:text.index("\x00")].count("\n") + 1
+        raise InputError(where, f"line {line}", "holds a NUL byte (not a text file)",
+                         "give the CSV log itself, saved as UTF-8 text")
     lines = text.replace("\r\n", "\n").replace("\r", "\n").split("\n")
     while lines and not lines[-1].strip():
         lines.pop()
@@ -238,6 +280,24 @@ def _lines(raw: bytes, where: str) -> list[str]:
             raise InputError(where, f"line {number}", "is blank",
                              "remove blank lines between rows (nothing is skipped silently)")
     return lines
+
+
+def _utf16(raw: bytes) -> str:
+    """``"UTF-16 LE"`` / ``"UTF-16 BE"`` (with "with its byte-order mark") when ``raw`` looks
+    like UTF-16 text, else ``""``: a byte-order mark, or ASCII text whose every other byte is
+    NUL (UTF-8 accepts NUL bytes, so such a file used to decode into columns of NULs)."""
+    for bom, name in ((b"\xff\xfe", "UTF-16 LE"), (b"\xfe\xff", "UTF-16 BE")):
+        if raw.startswith(bom):
+            return f"{name} with its byte-order mark"
+    head = raw[:4096]
+    if len(head) < 4:
+        return ""
+    odd, even = head[1::2], head[0::2]
+    if odd.count(0) > 0.9 * len(odd) and even.count(0) < 0.1 * len(even):
+        return "UTF-16 LE"
+    if even.count(0) > 0.9 * len(even) and odd.count(0) < 0.1 * len(odd):
+        return "UTF-16 BE"
+    return ""
 
 
 def _q(text: str) -> str:

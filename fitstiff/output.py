@@ -48,6 +48,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import errno
 import fcntl
 import hashlib
 import itertools
@@ -63,11 +64,12 @@ from pathlib import Path
 
 import numpy as np
 
+from fitstiff._interrupts import Interrupted, pending
 from fitstiff.errors import InputError
 from fitstiff.guards import first_nonfinite
 
-__all__ = ["LOCK_NAME", "LOG_SUFFIXES", "OutputDir", "sha256_file", "to_jsonable",
-           "write_atomic"]
+__all__ = ["LOCK_NAME", "LOG_SUFFIXES", "NO_ROOM", "OutputDir", "ensure_room", "sha256_file",
+           "to_jsonable", "write_atomic"]
 
 LOCK_NAME = ".fitstiff.lock"
 STAGING_PREFIX = ".fitstiff-partial-"
@@ -107,6 +109,34 @@ def to_jsonable(obj):
         f = float(obj)
         return f if np.isfinite(f) else None
     return obj
+
+
+#: errors of the file system that the user resolves: no space, a quota, a file-size limit
+NO_ROOM = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
+#: room kept free beyond a write's own size (:func:`ensure_room`): HDF5 allocates whole chunks
+#: (h5py's are at most 1 MiB) and rewrites its metadata
+ROOM_MARGIN = 4 << 20
+
+
+def ensure_room(directory: str | os.PathLike, nbytes: int, *, what: str) -> None:
+    """Raise ``OSError(ENOSPC)`` before ``nbytes`` are written into ``directory`` when its
+    file system has less room than that plus :data:`ROOM_MARGIN`. For writers that leave a
+    broken file, or crash, when the disk fills in the middle of a write (HDF5: a posterior's
+    chain on a full disk ended in a segmentation fault and a file ``--resume`` could not
+    read); the file stays as it was after its last complete write."""
+    stats = os.statvfs(directory)
+    free = stats.f_bavail * stats.f_frsize
+    need = int(nbytes) + ROOM_MARGIN
+    if free < need:
+        raise OSError(errno.ENOSPC, f"No space left on device for {what} ({free / 2**20:.1f} "
+                      f"MiB free, {need / 2**20:.1f} MiB needed)", str(directory))
+
+
+def _real(path: str | os.PathLike) -> Path:
+    """The path with its links resolved; a link loop gives a path too (``Path.resolve``
+    raised ``RuntimeError: Symlink loop`` there, a traceback for a looped input given with
+    ``--out``; the loader then refuses the input in one line)."""
+    return Path(os.path.realpath(path))
 
 
 def _umask() -> int:
@@ -186,8 +216,14 @@ def _acquire(directory: Path) -> tuple[_Lock, bool]:
         if same:
             break
         os.close(fd)
-    os.ftruncate(fd, 0)
-    os.pwrite(fd, f"{os.getpid()}\n".encode("ascii"), 0)
+    try:
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode("ascii"), 0)
+    except OSError as exc:          # no room for the pid (a full disk): leave no lock behind
+        with contextlib.suppress(OSError):
+            os.unlink(path)
+        os.close(fd)
+        raise _unwritable(directory, exc) from None
     lock = _Lock(key, fd)
     _HELD[key] = lock
     return lock, True
@@ -205,7 +241,8 @@ def _release(lock: _Lock) -> None:
 
 def _unwritable(directory: Path, exc: OSError) -> InputError:
     return InputError(str(directory), "--out", f"is not writable ({exc.strerror})",
-                      "give a directory you can write to")
+                      "free some space on its device and run again" if exc.errno in NO_ROOM
+                      else "give a directory you can write to")
 
 
 def _make_directory(path: Path) -> list[Path]:
@@ -273,7 +310,7 @@ def _records(directory: Path) -> list[_Record]:
             inputs = []
             for item in entry.get("inputs", []):
                 with contextlib.suppress(TypeError, KeyError, OSError):
-                    inputs.append((cwd / item["path"]).resolve())
+                    inputs.append(_real(cwd / item["path"]))
             out.append(_Record(path, {str(n): shas.get(n) for n in entry.get("outputs", [])},
                                tuple(inputs)))
     return out
@@ -403,16 +440,24 @@ class OutputDir:
         """Resolved paths this run must not write -> why."""
         out: dict[Path, str] = {}
         for p in self.inputs:
-            out.setdefault(p.resolve(), "is an input of this run")
+            out.setdefault(_real(p), "is an input of this run")
         for p in self.inputs:
             if p.suffix.lower() != ".json":
-                out.setdefault(p.with_suffix(".json").resolve(),
+                out.setdefault(_real(p.with_suffix(".json")),
                                f"is the sidecar name of the input log {p}")
-                out.setdefault(p.with_name(f"{p.stem}.truth.json").resolve(),
+                out.setdefault(_real(p.with_name(f"{p.stem}.truth.json")),
                                f"is the truth file name of the input log {p}")
+        # a run that adds to DIR under a manifest of its own (fitstiff report) reads DIR's
+        # results: those stay writable for the next step of the run that made them (a refit,
+        # a --resume), which a report must not block. Other inputs stay protected.
+        main = [r for r in self._records if r.manifest.name == "manifest.json"]
+        own = ({_real(self.path / name) for r in main for name in r.outputs}
+               | {_real(r.manifest) for r in main})
         for record in self._records:
+            adds_on = record.manifest.name != "manifest.json"
             for p in record.inputs:
-                out.setdefault(p, f"is an input of the run recorded in {record.manifest}")
+                if not (adds_on and p in own):
+                    out.setdefault(p, f"is an input of the run recorded in {record.manifest}")
         return out
 
     def _refuse(self, target: Path, found: str) -> InputError:
@@ -437,7 +482,7 @@ class OutputDir:
                         self._check_existing(p, p.relative_to(self.path).as_posix(), protected)
             self._checked.add(name)
             return
-        why = protected.get(target.resolve())
+        why = protected.get(_real(target))
         if why:
             raise self._refuse(target, why)
         log = _log_companions(target.parent).get(target.name)
@@ -457,7 +502,7 @@ class OutputDir:
                                        "links)")
         if target.is_dir():
             raise self._refuse(target, "is a directory")
-        why = protected.get(target.resolve())
+        why = protected.get(_real(target))
         if why:
             raise self._refuse(target, why)
         if name.endswith(_MANIFEST_SUFFIX) and "/" not in name:
@@ -536,9 +581,12 @@ class OutputDir:
         return self.path / name
 
     def manifest(self) -> dict:
+        """The manifest of the run: what :meth:`finish` writes (the staged files and those
+        already moved into place count as outputs)."""
         from fitstiff import __version__
 
-        outputs = sorted(set(self.written))
+        where = {name: self.path / name for name in self.written} | dict(self._staged)
+        outputs = sorted(where)
         return {
             "fitstiff_version": __version__,
             "command": self.command,
@@ -550,7 +598,7 @@ class OutputDir:
             "inputs": [{"path": str(p), "sha256": sha256_file(p) if p.is_file() else None}
                        for p in self.inputs],
             "outputs": outputs,
-            "output_sha256": {name: sha256_file(self.path / name) for name in outputs},
+            "output_sha256": {name: sha256_file(where[name]) for name in outputs},
             "earlier_runs": self._earlier_runs(set(outputs)),
         }
 
@@ -584,7 +632,14 @@ class OutputDir:
         self.claim()
         if not self.manifest_name:
             raise ValueError("this OutputDir has no manifest: it only claims the directory")
+        if pending() is not None:     # a stop whose exception was lost: commit nothing
+            raise Interrupted(pending())
         self._check(self.manifest_name)
+        # everything is written (staged) before anything is moved: a full disk fails the run
+        # while DIR is as it was; the moves need no room, and the manifest goes last
+        manifest = self._stage_path(self.manifest_name)
+        manifest.write_text(json.dumps(to_jsonable(self.manifest()), indent=2) + "\n",
+                            encoding="utf-8")
         for name, source in self._staged.items():
             target = self.path / name
             target.parent.mkdir(parents=True, exist_ok=True)
@@ -592,8 +647,9 @@ class OutputDir:
             os.replace(source, target)
             self.written.append(name)
         self._staged.clear()
-        path = write_atomic(self.path / self.manifest_name,
-                            json.dumps(to_jsonable(self.manifest()), indent=2) + "\n")
+        path = self.path / self.manifest_name
+        _give_mode(manifest, path)
+        os.replace(manifest, path)
         self._finished = True
         self._created = []                          # keep what we made: it holds results
         self._discard()

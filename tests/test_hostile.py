@@ -198,8 +198,8 @@ CORPUS: dict[str, Case] = {
     "bore as list": Case(side=sidecar(bore_mm=[32]), expect=everywhere("(a list), not a number")),
     "bore as object": Case(side=sidecar(bore_mm={"value": 32}),
                            expect=everywhere("an object, not a number")),
-    "bore null": Case(side=sidecar(bore_mm=None),
-                      expect=loads(fit="'bore_mm' (piston bore diameter): is missing")),
+    # issue 36: a null is not a number (it used to pass inspect as "missing")
+    "bore null": Case(side=sidecar(bore_mm=None), expect=everywhere("key 'bore_mm': is null")),
     "bore negative": Case(side=sidecar(bore_mm=-3), expect=everywhere("found -3 mm, outside")),
     "bore in metres": Case(side=sidecar(bore_mm=0.032),
                            expect=everywhere("found 0.032 mm, outside the plausible range")),

@@ -17,8 +17,9 @@ SIDECAR = {"bore_mm": 32, "rod_mm": 0, "stroke_mm": 100, "start_position_mm": 50
            "supply_bar": 6}
 
 
-def write_log(tmp_path, *, name="run1", with_time=True, sidecar=SIDECAR):
-    """Two triangle cycles of +-2 mm at 10 mm/s with a 1 s hold at +1 mm; force = 40 N/mm."""
+def write_log(tmp_path, *, name="run1", with_time=True, sidecar=SIDECAR, seed=0):
+    """Two triangle cycles of +-2 mm at 10 mm/s with a 1 s hold at +1 mm; force = 40 N/mm;
+    ``seed`` of the displacement noise."""
     step = 10e-3 / FS * 1e3                                  # mm per sample
     knots_i, knots_x = [0], [0.0]
     for target in (2, -2, 1, 1, -2, 0):
@@ -26,7 +27,7 @@ def write_log(tmp_path, *, name="run1", with_time=True, sidecar=SIDECAR):
         knots_i.append(knots_i[-1] + (int(FS) if hold else round(abs(target - knots_x[-1]) / step)))
         knots_x.append(float(target))
     i = np.arange(knots_i[-1] + 1)
-    x = np.interp(i, knots_i, knots_x) + np.random.default_rng(0).normal(0, 0.003, i.size)
+    x = np.interp(i, knots_i, knots_x) + np.random.default_rng(seed).normal(0, 0.003, i.size)
     columns = {"time_s": i / FS} if with_time else {}
     columns |= {"displacement_mm": x, "force_N": 40 * x}
     path = tmp_path / f"{name}.csv"
@@ -81,7 +82,7 @@ def test_inspect_without_time_or_sidecar(tmp_path):
 
 
 def test_cli_json(tmp_path, capsys):
-    paths = [str(write_log(tmp_path, name=n)) for n in ("a", "b")]
+    paths = [str(write_log(tmp_path, name=n, seed=k)) for k, n in enumerate(("a", "b"))]
     assert main(["inspect", *paths, "--json"]) == 0
     document = json.loads(capsys.readouterr().out)
     assert [s["file"] for s in document["logs"]] == ["a", "b"]

@@ -217,10 +217,21 @@ def test_bundled_format_by_name(tmp_path):
 
 
 def test_load_logs_reads_every_file(tmp_path):
-    paths = [write(tmp_path, good_lines(), name=f"run{i}.csv") for i in range(3)]
+    paths = [write(tmp_path, with_line(good_lines(), 2, f"0.0,0.00,{i}.25,6"),
+                   name=f"run{i}.csv") for i in range(3)]
     assert [log.name for log in load_logs(paths)] == ["run0", "run1", "run2"]
     with pytest.raises(InputError, match="log files: none given"):
         load_logs([])
+
+
+def test_a_log_given_twice_is_refused_naming_both(tmp_path):
+    """Issue 36: the same file, or the same content, twice would count its data twice."""
+    one = write(tmp_path, good_lines(), name="one.csv")
+    two = write(tmp_path, good_lines(), name="two.csv")
+    with pytest.raises(InputError, match=f"{one}: log: is the same file as {one}"):
+        load_logs([one, one])
+    with pytest.raises(InputError, match=f"{two}: log: has the same content as {one}"):
+        load_logs([one, two])
 
 
 # ------------------------------------------------------------------------------- bad files

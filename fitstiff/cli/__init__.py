@@ -2,20 +2,24 @@
 
 Each subcommand lives in its own module ``fitstiff/cli/<name>.py`` exposing
 ``add_parser(subparsers)`` (which sets ``func`` on its parser). Exit codes: 0 success,
-2 bad input (one line on stderr, no traceback), 1 internal failure.
+2 bad input or no room to write (one line on stderr, no traceback), 1 internal failure, 130 and
+143 when SIGINT or SIGTERM stopped it (one line that says what was kept).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import os
+import signal
 import sys
 import traceback
 import warnings
 from pathlib import Path
 
 from fitstiff import __version__
+from fitstiff._interrupts import Interrupted, Signals, pending
 from fitstiff._malloc import limit_arenas
 from fitstiff.errors import InputError
 
@@ -36,17 +40,14 @@ class _Parser(argparse.ArgumentParser):
 def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     """The parser of every subcommand, or of ``only`` (then only its module is imported:
     ``fitstiff inspect`` does not import JAX, matplotlib or the samplers)."""
-    parser = _Parser(prog="fitstiff", description=__doc__.splitlines()[0])
+    parser = _Parser(prog="fitstiff", description="fitstiff: passive stiffness of pneumatic "
+                     "cylinders from force-displacement logs (pre-sliding slope, breakaway, "
+                     "the chamber's gas spring), with posteriors and a diagnosis of what a "
+                     "model misses. 'fitstiff COMMAND --help' for each command.")
     parser.add_argument("--version", action="version", version=f"fitstiff {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     for name in (only,) if only in SUBCOMMANDS else SUBCOMMANDS:
-        try:
-            module = importlib.import_module(f"fitstiff.cli.{name}")
-        except ModuleNotFoundError as exc:
-            if exc.name == f"fitstiff.cli.{name}":
-                continue  # not built yet
-            raise
-        module.add_parser(sub)
+        importlib.import_module(f"fitstiff.cli.{name}").add_parser(sub)
     return parser
 
 
@@ -101,35 +102,115 @@ def console(argv: list[str] | None = None) -> int:
     the command, not to :func:`main`, which scripts, notebooks and tests call in processes
     that live long: every executable JAX loads back from the cache keeps its memory maps in
     JAX's in-memory caches, and a test-suite worker that had turned it on by calling
-    :func:`main` passed the kernel's limit on maps and segfaulted loading one more."""
-    _enable_compilation_cache()    # imports nothing: JAX reads it when a command imports it
-    return main(argv)
+    :func:`main` passed the kernel's limit on maps and segfaulted loading one more.
+
+    A signal before :func:`main` installs its handlers, or after it returned (while the
+    interpreter shuts down), ends the process with one line and the signal's code too."""
+    try:
+        _enable_compilation_cache()    # imports nothing: JAX reads it when a command imports it
+        status = main(argv)
+    except KeyboardInterrupt:
+        sys.stderr.write("fitstiff: interrupted by SIGINT; nothing was written\n")
+        status = 130
+    for signum in (signal.SIGINT, signal.SIGTERM):   # the command is over: just go
+        signal.signal(signum, _exit_now)
+    return status
+
+
+def _exit_now(signum, frame) -> None:
+    with contextlib.suppress(Exception):
+        sys.stdout.flush()
+    os._exit(128 + signum)
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run one fitstiff command; returns its exit status (0, 1 or 2)."""
-    limit_arenas()                 # before JAX starts its threads (fitstiff._malloc)
+    """Run one fitstiff command; returns its exit status: 0, 2 (bad input, or no room to
+    write), 1 (an internal failure), 130 or 143 (stopped by SIGINT or SIGTERM,
+    :mod:`fitstiff._interrupts`)."""
     argv = sys.argv[1:] if argv is None else list(argv)
-    parser = build_parser(argv[0] if argv else None)
-    args = parser.parse_args(argv)
-    if not getattr(args, "func", None):
-        parser.print_help()
-        return 2
-    try:
-        with warnings.catch_warnings():
-            # a floating-point warning means a computation met values it cannot handle:
-            # stop there (a result built on inf or NaN is never written) and say so
-            warnings.filterwarnings("error", message=_NUMERIC_WARNINGS, category=RuntimeWarning)
-            return int(args.func(args) or 0)
-    except InputError as exc:
-        sys.stderr.write(f"fitstiff {args.command}: error: {exc}\n")
-        return 2
-    except RuntimeWarning as exc:
-        sys.stderr.write(f"fitstiff {args.command}: error: {_numeric_message(args, exc)}\n")
-        return 2
-    except KeyboardInterrupt:
-        sys.stderr.write(f"fitstiff {args.command}: interrupted\n")
-        return 130
+    name = f"fitstiff {argv[0]}" if argv and argv[0] in SUBCOMMANDS else "fitstiff"
+    with Signals() as signals, _QuietStdout.installed():
+        try:
+            limit_arenas()             # before JAX starts its threads (fitstiff._malloc)
+            with signals.deferred():   # the command's imports: JAX's extensions (see there)
+                parser = build_parser(argv[0] if argv else None)
+            args = parser.parse_args(argv)
+            if not getattr(args, "func", None):
+                parser.print_help()
+                return 2
+            with warnings.catch_warnings():
+                # a floating-point warning means a computation met values it cannot handle:
+                # stop there (a result built on inf or NaN is never written) and say so
+                warnings.filterwarnings("error", message=_NUMERIC_WARNINGS,
+                                        category=RuntimeWarning)
+                status = int(args.func(args) or 0)
+            if pending() is not None:  # its exception was lost (fitstiff._interrupts)
+                raise Interrupted(pending(), kept="the run had finished: its outputs are "
+                                                  "complete")
+            return status
+        except InputError as exc:
+            sys.stderr.write(f"{name}: error: {exc}\n")
+            return 2
+        except RuntimeWarning as exc:
+            sys.stderr.write(f"{name}: error: {_numeric_message(args, exc)}\n")
+            return 2
+        except KeyboardInterrupt as exc:
+            stop = exc if isinstance(exc, Interrupted) else Interrupted(signal.SIGINT)
+            sys.stderr.write(f"{name}: interrupted by {stop.name}; "
+                             f"{stop.kept or 'its unfinished outputs were discarded'}\n")
+            return stop.exit_code
+        except OSError as exc:
+            from fitstiff.output import NO_ROOM
+
+            if exc.errno not in NO_ROOM:
+                raise
+            where = f"{exc.filename}: " if exc.filename else ""
+            sys.stderr.write(f"{name}: error: {where}{exc.strerror} while writing; the run's "
+                             "unfinished outputs were discarded: free some space (or raise the "
+                             "limit) and run it again\n")
+            return 2
+
+
+class _QuietStdout:
+    """``sys.stdout`` that stops writing when its reader has gone (``fitstiff inspect --json
+    | head -1``): the rest goes to the null device and the command finishes its work, as
+    ``head``'s writer would end without a word."""
+
+    def __init__(self, stream):
+        self._stream = stream
+
+    def write(self, text):
+        try:
+            return self._stream.write(text)
+        except BrokenPipeError:
+            self._to_null()
+            return len(text)
+
+    def flush(self):
+        try:
+            self._stream.flush()
+        except BrokenPipeError:
+            self._to_null()
+
+    def _to_null(self):
+        null = os.open(os.devnull, os.O_WRONLY)
+        with contextlib.suppress(OSError, ValueError):
+            os.dup2(null, self._stream.fileno())
+        os.close(null)
+
+    def __getattr__(self, attr):
+        return getattr(self._stream, attr)
+
+    @classmethod
+    @contextlib.contextmanager
+    def installed(cls):
+        stream = sys.stdout
+        sys.stdout = cls(stream)
+        try:
+            yield
+        finally:
+            sys.stdout.flush()         # what is buffered goes now, not in the shutdown
+            sys.stdout = stream
 
 
 if __name__ == "__main__":  # pragma: no cover

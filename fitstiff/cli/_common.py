@@ -20,10 +20,28 @@ from pathlib import Path
 from fitstiff.columns import CHAMBERS, ENTRY_FORM, bundled_formats
 from fitstiff.loading import load_logs
 from fitstiff.log import RIG_KEYS, Log
+from fitstiff.output import LOG_SUFFIXES
 from fitstiff.validation import cli_number
 
-__all__ = ["add_log_arguments", "add_out_argument", "input_files", "input_paths",
-           "logs_from_args", "reading_options"]
+__all__ = ["add_log_arguments", "add_out_argument", "directory", "input_files", "input_paths",
+           "logs_from_args", "model_spec", "reading_options"]
+
+
+def directory(text: str) -> Path:
+    """An argparse type for an output directory: an empty one is refused (``Path('')`` is
+    the current directory, where ``--out ''`` used to write)."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("is empty: give a directory path, e.g. results")
+    return Path(text)
+
+
+def model_spec(text: str) -> str:
+    """An argparse type for a model spec: an empty one is refused (it used to fit the
+    default model without a word)."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("is empty: give terms joined by '+', e.g. "
+                                         "chamber+dahl")
+    return text
 
 
 def add_log_arguments(parser: argparse.ArgumentParser) -> None:
@@ -31,7 +49,7 @@ def add_log_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("logs", nargs="+", metavar="LOG",
                         help="CSV log files (rig metadata from <stem>.json beside each)")
     reading = parser.add_argument_group("reading foreign files")
-    reading.add_argument("--columns", nargs="+", metavar="ENTRY",
+    reading.add_argument("--columns", nargs="+", metavar="ENTRY", action=_ColumnEntries,
                          help="column mapping, one entry per quantity (time, displacement, "
                               f"force, p_a, p_b): {ENTRY_FORM}; put the LOG files first")
     reading.add_argument("--format", metavar="FILE|NAME",
@@ -51,9 +69,25 @@ def add_log_arguments(parser: argparse.ArgumentParser) -> None:
                      help="a chamber open to ambient (repeat for both)")
 
 
+class _ColumnEntries(argparse.Action):
+    """``--columns`` entries, each ``QUANTITY=COLUMN[:UNIT]``: a LOG file written after them
+    is taken as one more entry (argparse cannot tell), and the command then only said "the
+    following arguments are required: LOG"; now the entry is named."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        for value in values:
+            if "=" not in value:
+                hint = ("; it looks like a LOG file: put the LOG files before --columns"
+                        if Path(value).suffix.lower() in LOG_SUFFIXES or Path(value).exists()
+                        else "")
+                parser.error(f"argument --columns: entry {value!r} is not "
+                             f"QUANTITY=COLUMN[:UNIT]{hint}")
+        setattr(namespace, self.dest, values)
+
+
 def add_out_argument(parser: argparse.ArgumentParser, *, default: str | None = None) -> None:
     """``--out DIR`` (required unless ``default`` is given)."""
-    parser.add_argument("--out", metavar="DIR", type=Path, default=default,
+    parser.add_argument("--out", metavar="DIR", type=directory, default=default,
                         required=default is None,
                         help="output directory (written atomically, with a manifest.json)")
 

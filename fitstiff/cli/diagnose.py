@@ -10,7 +10,7 @@ import json
 import numpy as np
 
 from fitstiff.cli._common import (add_log_arguments, add_out_argument, input_paths,
-                                  logs_from_args, reading_options)
+                                  logs_from_args, model_spec, reading_options)
 from fitstiff.cli.fit import add_data_arguments, problem_options
 from fitstiff.diagnosis import ALPHA, HELDOUT, MIN_SHRINK, RESULT, diagnose
 from fitstiff.diagnosis.supermodel import CANDIDATES
@@ -28,7 +28,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                     "diagnosis.json and a manifest.")
     add_log_arguments(parser)
     group = parser.add_argument_group("diagnosis")
-    group.add_argument("--baseline", default="chamber+dahl", metavar="SPEC",
+    group.add_argument("--baseline", default="chamber+dahl", metavar="SPEC", type=model_spec,
                        help="the model whose gap is diagnosed (default chamber+dahl)")
     group.add_argument("--candidates", default="all", metavar="all|LIST",
                        help="'all' or a comma-separated list of: " + ", ".join(CANDIDATES))

@@ -7,13 +7,13 @@ import json
 import math
 
 from fitstiff.cli._common import (add_log_arguments, add_out_argument, input_paths,
-                                  logs_from_args, reading_options)
+                                  logs_from_args, model_spec, reading_options)
 from fitstiff.comparison import compare
 from fitstiff.errors import InputError
 from fitstiff.fitting import SOLVERS, fit
 from fitstiff.model import build_model
 from fitstiff.output import OutputDir, to_jsonable
-from fitstiff.params import find_param
+from fitstiff.params import find_param, named_params
 from fitstiff.problem import OPTIONAL_NUISANCES
 from fitstiff.segmentation import REGIONS
 from fitstiff.validation import parse_decimal
@@ -50,7 +50,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 def add_fit_arguments(parser: argparse.ArgumentParser) -> None:
     """Model and solver options shared by ``fit``, ``posterior`` and ``diagnose``."""
     group = parser.add_argument_group("model and solver")
-    group.add_argument("--model", default=DEFAULT_MODEL, metavar="SPEC",
+    group.add_argument("--model", default=DEFAULT_MODEL, metavar="SPEC", type=model_spec,
                        help="terms joined by '+' (default chamber+dahl)")
     group.add_argument("--fix", action="append", default=[], metavar="NAME[=VALUE]",
                        help="hold a parameter (value in its display unit, e.g. n=1.4 or "
@@ -85,8 +85,10 @@ def parse_fix(items, spec: str) -> dict[str, float | None]:
         try:
             param = find_param(model, name)
         except KeyError:
+            names = [n for _, _, flat in named_params(model) for n in flat]
             raise InputError(None, f"--fix {item}", f"'{name}' is not a parameter of "
-                             f"'{spec}'", "see the parameter names in fit.json") from None
+                             f"'{spec}'", f"use one of: {', '.join(names)} (NAME=VALUE), or "
+                             "offset, friction_state0 (held at their start)") from None
         values[name] = param.to_si(number)
     return values
 

@@ -12,7 +12,7 @@ import argparse
 import contextlib
 import json
 
-from fitstiff.cli._common import add_log_arguments, input_paths, logs_from_args
+from fitstiff.cli._common import add_log_arguments, directory, input_paths, logs_from_args
 from fitstiff.inspection import format_summary, inspect_log
 from fitstiff.output import OutputDir, to_jsonable
 from fitstiff.segmentation import DEFAULT_MIN_PAUSE, DEFAULT_PRESLIDING_RANGE, segment
@@ -47,7 +47,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     seg.add_argument("--min-pause-s", type=cli_number, metavar="T", default=DEFAULT_MIN_PAUSE,
                      help=f"shortest standstill reported as a pause (default {DEFAULT_MIN_PAUSE:g})")
     parser.add_argument("--json", action="store_true", help="print JSON instead of text")
-    parser.add_argument("--out", metavar="DIR",
+    parser.add_argument("--out", metavar="DIR", type=directory,
                         help="also write inspect.json and manifest.json to DIR")
     parser.set_defaults(func=run)
     return parser

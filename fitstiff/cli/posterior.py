@@ -12,9 +12,8 @@ from __future__ import annotations
 import argparse
 import json
 import shutil
-import signal
-import sys
 from pathlib import Path
+from signal import SIGINT
 
 import numpy as np
 
@@ -25,10 +24,11 @@ from fitstiff.cli._common import (
     logs_from_args,
     reading_options,
 )
+from fitstiff._interrupts import Interrupted, pending
 from fitstiff.cli.fit import add_fit_arguments, fit_options, parse_fix
 from fitstiff.errors import InputError
 from fitstiff.likelihood import NOISE_MODELS
-from fitstiff.output import OutputDir, to_jsonable
+from fitstiff.output import NO_ROOM, OutputDir, ensure_room, to_jsonable
 from fitstiff.posterior import (
     CHAIN,
     DEFAULT_MOVES,
@@ -92,32 +92,6 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     return parser
 
 
-class _Interrupts:
-    """SIGTERM and SIGINT as :class:`KeyboardInterrupt`, not lost: Python drops an exception
-    raised while a garbage-collection callback runs (JAX registers one), and a ``kill``
-    landing there let the run go on to its end. The signal is also recorded, and the
-    sampler asks after every step (:func:`~fitstiff.posterior.sample_posterior`
-    ``interrupted``)."""
-
-    SIGNALS = (signal.SIGTERM, signal.SIGINT)
-
-    def __init__(self):
-        self.received = False
-        self._previous: dict[int, object] = {}
-
-    def __call__(self, signum, frame):
-        self.received = True
-        raise KeyboardInterrupt
-
-    def __enter__(self) -> _Interrupts:
-        self._previous = {s: signal.signal(s, self) for s in self.SIGNALS}
-        return self
-
-    def __exit__(self, *exc) -> None:
-        for s, handler in self._previous.items():
-            signal.signal(s, handler)
-
-
 def run(args) -> int:
     options = fit_options(args)
     fix = parse_fix(args.fix, args.model)
@@ -140,24 +114,30 @@ def run(args) -> int:
         elif not args.resume:
             partial.unlink(missing_ok=True)
         try:
-            with _Interrupts() as interrupts:
-                posterior = sample_posterior(
-                    logs, args.model, fix=fix, fit_options=options,
-                    noise_model=args.noise_model, priors=args.priors, walkers=args.walkers,
-                    steps=args.steps, tau_multiple=args.tau_multiple,
-                    check_every=args.check_every, thin=args.thin, seed=args.seed,
-                    backend=partial, resume=args.resume, draws=args.draws, moves=args.moves,
-                    integrate_offsets=not args.sample_offsets, release=True,
-                    interrupted=lambda: interrupts.received)
-                if interrupts.received:         # dropped after the last step: still a stop
-                    raise KeyboardInterrupt
-        except KeyboardInterrupt:
+            posterior = sample_posterior(
+                logs, args.model, fix=fix, fit_options=options,
+                noise_model=args.noise_model, priors=args.priors, walkers=args.walkers,
+                steps=args.steps, tau_multiple=args.tau_multiple,
+                check_every=args.check_every, thin=args.thin, seed=args.seed,
+                backend=partial, resume=args.resume, draws=args.draws, moves=args.moves,
+                integrate_offsets=not args.sample_offsets, release=True,
+                interrupted=lambda: pending() is not None)
+        except KeyboardInterrupt as exc:
+            stop = exc if isinstance(exc, Interrupted) else Interrupted(pending() or SIGINT)
             if partial.exists():
-                sys.stderr.write(f"fitstiff posterior: the chain so far is kept in {partial}; "
-                                 "continue it with --resume\n")
-            raise
+                stop.kept = (f"the chain so far is kept in {partial}; continue it with "
+                             "--resume")
+            raise stop from None
+        except OSError as exc:
+            if exc.errno not in NO_ROOM or not partial.exists():
+                raise
+            raise InputError(str(partial), "chain", f"stopped: {exc.strerror}",
+                             "the chain so far is kept there: free some space and continue "
+                             "it with --resume") from None
         out.commit_partial(CHAIN)
-        posterior.to_inference_data().to_netcdf(str(out.temp_path(INFERENCE_DATA)))
+        data = posterior.to_inference_data()
+        ensure_room(out.path, 2 * data.posterior.nbytes, what=INFERENCE_DATA)   # HDF5 too
+        data.to_netcdf(str(out.temp_path(INFERENCE_DATA)))
         out.commit(INFERENCE_DATA)
         with open(out.temp_path(PREDICTIVE), "wb") as fh:
             np.savez_compressed(fh, **posterior.predictive)

@@ -16,7 +16,7 @@ from __future__ import annotations
 import argparse
 import re
 
-from fitstiff.cli._common import add_out_argument
+from fitstiff.cli._common import add_out_argument, model_spec
 from fitstiff.errors import InputError
 from fitstiff.log import RIG_KEYS, Rig
 from fitstiff.output import OutputDir
@@ -70,7 +70,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                "--set sigma0=40 --set Fc=18 --program triangle --out sim/",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    parser.add_argument("--model", default="chamber+dahl", metavar="SPEC",
+    parser.add_argument("--model", default="chamber+dahl", metavar="SPEC", type=model_spec,
                         help="model spec, terms joined by '+' (default chamber+dahl)")
     parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                         dest="values",

@@ -11,6 +11,7 @@ import argparse
 import contextlib
 import json
 
+from fitstiff.cli._common import directory
 from fitstiff.log import RIG_KEYS, Rig
 from fitstiff.output import OutputDir, to_jsonable
 from fitstiff.stiffness import (ADIABATIC_AIR, BAR, JSON_KEYS, MM, StiffnessResult,
@@ -73,7 +74,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                                           "is evaluated, + toward the B cap "
                                           f"(default {DEFAULT_DISPLACEMENT_MM:g})")
     parser.add_argument("--json", action="store_true", help="print JSON instead of text")
-    parser.add_argument("--out", metavar="DIR",
+    parser.add_argument("--out", metavar="DIR", type=directory,
                         help="also write stiffness.json and manifest.json to DIR")
     parser.set_defaults(func=run)
     return parser
