@@ -42,6 +42,7 @@ from fitstiff.model import Model
 from fitstiff.noise import marginal_scale
 from fitstiff.params import Parameterization, named_params, to_display, to_si
 from fitstiff.problem import NUISANCE_PARAMS, Problem
+from fitstiff.spikes import UNTRUSTED as _UNTRUSTED
 from fitstiff.terms.base import FrictionBase, FrictionEstimate, Modifier
 
 __all__ = ["FitResult", "fit", "fit_problem", "initial_guess", "SOLVERS", "LEAN_JACOBIAN_MB"]
@@ -590,6 +591,10 @@ def _summarise(problem: Problem, theta, *, converged: bool, message: str, steps:
     if not converged:
         warnings.insert(0, f"the solver did not converge: {message}")
     warnings.extend(notes)
+    # what the loader found in a log (spikes, a force scale no cylinder has) stays beside
+    # the fit that went through it
+    warnings.extend(f"{log.name}: {note}" for log in problem.logs for note in log.notes
+                    if note.endswith(_UNTRUSTED))
 
     # derived quantities at the first log's operating point (per-log chamber stiffness below)
     var0 = np.einsum("ij,jk,ik->i", g0, cov_theta, g0)

@@ -46,6 +46,7 @@ from fitstiff.columns import (CHAMBERS, ENTRY_FORM, EXAMPLE_NAMES, QUANTITIES,
                               read_json_object)
 from fitstiff.errors import InputError
 from fitstiff.log import Log, Rig
+from fitstiff.spikes import find_spikes, force_scale_note, spike_note
 from fitstiff.units import parse_unit
 from fitstiff.validation import (CHANNEL_LIMITS, MIN_TIME_STEP_S, exists, is_decimal,
                                  regular_file)
@@ -511,6 +512,11 @@ def _values(table: _Table, column: _Column, *, no_header: bool) -> np.ndarray:
     return values
 
 
+#: channels screened for spikes (:mod:`fitstiff.spikes`): display unit and SI per unit
+_SHOWN = {"force": ("N", 1.0), "displacement": ("mm", 1e-3), "p_a": ("bar abs", 1e5),
+          "p_b": ("bar abs", 1e5)}
+
+
 def _check_magnitude(table: _Table, column: _Column, si: np.ndarray) -> None:
     """Every SI value within the channel's physical bound (:data:`CHANNEL_LIMITS`)."""
     limit = CHANNEL_LIMITS[column.spec.quantity]
@@ -615,6 +621,17 @@ def _load(path: Path, layout: Format, overrides: dict[str, object]) -> Log:
     notes = []
     if "time" not in si:
         notes.append("no time column: treated as quasi-static")
+    spiked: dict[str, list[int]] = {}
+    for quantity, (unit, scale) in _SHOWN.items():
+        spikes = find_spikes(si[quantity]) if quantity in si else []
+        spiked[quantity] = [s.sample for s in spikes]
+        if spikes:
+            notes.append(spike_note(quantity.replace("p_", "pressure "), unit, scale, spikes,
+                                    first_line=table.first_line))
+    scale = force_scale_note(np.delete(si["force"], spiked["force"]), bore=rig.bore,
+                             supply_pressure=rig.supply_pressure)
+    if scale:
+        notes.append(scale)
     logged = [c for c in CHAMBERS if f"p_{c}" in si]
     if len(logged) == 1:
         other = "b" if logged == ["a"] else "a"

@@ -452,3 +452,64 @@ def test_cli_bad_input_exits_2_with_one_line(tmp_path, lines, argv, sidecar, fra
 def test_cli_reads_a_good_log(tmp_path):
     result = run_cli("inspect", str(write(tmp_path, good_lines())))
     assert result.returncode == 0, result.stderr
+
+
+# ------------------------------------------------------------------ spikes and force scale
+
+FIG4_LOG = Path(__file__).resolve().parents[1] / "data" / "synthetic" / "fig4" / "p6bar_x350mm.csv"
+
+
+def _edited(tmp_path, edit) -> Path:
+    lines = FIG4_LOG.read_text().splitlines()
+    lines = edit(lines)
+    path = tmp_path / "log.csv"
+    path.write_text("\n".join(lines) + "\n")
+    (tmp_path / "log.json").write_text(FIG4_LOG.with_suffix(".json").read_text())
+    return path
+
+
+def test_a_spike_is_named_at_load_and_in_the_fit(tmp_path):
+    """Issue 36: one legal 1e6 N force sample gave 'converged', Fc = 23 730 N and warnings
+    that never named it. The loader names it (sample, line, size against the noise); a fit
+    through it repeats that among its warnings."""
+    def spike(lines):
+        cells = lines[815].split(",")
+        cells[2] = "1e6"                                 # force_N of sample 814 (line 816)
+        lines[815] = ",".join(cells)
+        return lines
+
+    log = load_log(_edited(tmp_path, spike))
+    [note] = [n for n in log.notes if "spike" in n]
+    assert note.startswith("force: 1 spike: sample 814 (line 816) is 1e+06 N, ")
+    assert "times the noise floor" in note and note.endswith("is not to be trusted")
+    assert not [n for n in log.notes if "reaches" in n]     # the scale check leaves it out
+
+    from fitstiff.fitting import fit
+
+    result = fit([log], "chamber+dahl")
+    assert f"log: {note}" in result.warnings
+
+
+def test_a_force_in_the_wrong_unit_is_named(tmp_path):
+    """Issue 36: force_N relabelled force_kN fitted 'converged', Fc = 23 446 N on a 32 mm
+    bore (p A is about 480 N at 6 bar), identifiable: yes."""
+    log = load_log(_edited(tmp_path, lambda lines: [lines[0].replace("force_N", "force_kN"),
+                                                    *lines[1:]]))
+    [note] = [n for n in log.notes if "reaches" in n]
+    assert note.startswith("force: reaches 2.241e+04 N, 46 times what the supply pressure "
+                           "holds on the piston (p A = 482.5 N at 6 bar on a 32 mm bore)")
+
+
+def test_the_bundled_and_real_logs_have_no_spike_or_scale_note():
+    """The screens catch gross errors only: no note on any bundled log (sharp reversals,
+    fast rates, pauses) or on the real O-ring logs where they are present."""
+    from conftest import REALDATA
+
+    repo = FIG4_LOG.parents[3]
+    paths = sorted((repo / "data" / "synthetic").rglob("*.csv"))
+    assert len(paths) > 20
+    for log in load_logs(paths):
+        assert not [n for n in log.notes if "spike" in n or "reaches" in n], log.name
+    real = sorted(REALDATA.glob("O-ring_*bar.csv"))
+    for log in (load_logs(real, fmt="zillen_oring") if real else []):
+        assert not [n for n in log.notes if "spike" in n or "reaches" in n], log.name
