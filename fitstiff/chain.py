@@ -215,11 +215,14 @@ class ChainBackend(emcee.backends.Backend):
             series = [("chain", np.stack(coords)), ("log_prob", np.stack(log_prob))]
             if self.has_blobs():
                 series.append(("blobs", np.stack(blobs)))
-            # never start a write the disk cannot finish: the file keeps its last batch
-            ensure_room(self.path.parent, 2 * sum(v.nbytes for _, v in series),
-                        what=f"the next {len(coords)} steps of the chain")
             with h5py.File(self.path, "a") as f:
                 g = f[self.GROUP]
+                # never start a write the disk cannot finish (the file keeps its last batch):
+                # the steps, and a new chunk of every dataset they may open
+                chunks = sum(np.prod(g[name].chunks) * g[name].dtype.itemsize
+                             for name, _ in series)
+                ensure_room(self.path.parent, sum(v.nbytes for _, v in series) + chunks,
+                            what=f"the next {len(coords)} steps of the chain")
                 start, k = int(g["steps"][()]), len(coords)
                 for name, values in series:
                     g[name].resize(start + k, axis=0)

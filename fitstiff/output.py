@@ -10,7 +10,9 @@ Every command that writes takes ``--out DIR`` and goes through one :class:`Outpu
    - is an input of this run (a log, its sidecar ``<stem>.json``, a format or priors file),
      or would become the sidecar ``<stem>.json`` / truth file ``<stem>.truth.json`` of a log
      in DIR (``*.csv``, ``*.tsv``, ``*.txt``, ``*.dat``, ``*.log``) that the run does not
-     write itself, or is an input recorded by a manifest in DIR;
+     write itself, or is an input recorded by a manifest in DIR (except DIR's own results
+     that a run adding to DIR under a manifest of its own, ``fitstiff report``, read: they
+     stay writable for the refit or ``--resume`` of the run that made them);
    - exists but no fitstiff manifest in DIR records it as an output (a file fitstiff did not
      write), or it has changed since fitstiff wrote it (the manifests record SHA-256), or it
      is a directory or a symbolic link.
@@ -26,7 +28,9 @@ Every command that writes takes ``--out DIR`` and goes through one :class:`Outpu
 
 3. **Stage, then commit**: files are written into a private staging directory
    ``DIR/.fitstiff-partial-<pid>-<n>/`` and moved into place (``os.replace``, atomic per file)
-   by :meth:`OutputDir.finish`, which then writes the manifest last. A run that fails leaves
+   by :meth:`OutputDir.finish`, the manifest (staged with them, so a full disk fails the run
+   before anything is moved) last. A signal received meanwhile (:mod:`fitstiff._interrupts`)
+   stops :meth:`OutputDir.finish` before it moves anything. A run that fails leaves
    DIR as it was: the staging directory and a DIR it created are removed (a staging directory
    left by a killed run is clearly named and removed by the next run on DIR). Only a
    posterior's growing chain (:meth:`OutputDir.partial_path`, ``.chain.h5.partial.h5``) is
@@ -77,6 +81,7 @@ LOG_SUFFIXES = (".csv", ".tsv", ".txt", ".dat", ".log")
 """Files in an output directory with these suffixes count as logs: their sidecar and truth
 file names are never written there (unless the run writes the log too)."""
 _MANIFEST_SUFFIX = "manifest.json"
+_MAIN_MANIFEST = "manifest.json"    # a run's own; runs that add to DIR name theirs otherwise
 _FIX = "give another --out directory (a new or empty one)"
 
 
@@ -113,9 +118,9 @@ def to_jsonable(obj):
 
 #: errors of the file system that the user resolves: no space, a quota, a file-size limit
 NO_ROOM = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
-#: room kept free beyond a write's own size (:func:`ensure_room`): HDF5 allocates whole chunks
-#: (h5py's are at most 1 MiB) and rewrites its metadata
-ROOM_MARGIN = 4 << 20
+#: room kept free beyond a write's own size (:func:`ensure_room`): an HDF5 file rewrites its
+#: metadata (its writers add the size of the chunks they may allocate)
+ROOM_MARGIN = 256 << 10
 
 
 def ensure_room(directory: str | os.PathLike, nbytes: int, *, what: str) -> None:
@@ -355,7 +360,7 @@ class OutputDir:
     def __init__(self, path: str | os.PathLike, *, inputs: Iterable[str | os.PathLike] = (),
                  planned: Iterable[str] = (), command: str | None = None,
                  seed: int | None = None, options: Mapping[str, object] | None = None,
-                 manifest_name: str | None = "manifest.json"):
+                 manifest_name: str | None = _MAIN_MANIFEST):
         self.path = Path(path)
         self.manifest_name = manifest_name
         self.inputs = [Path(p) for p in inputs]
@@ -450,11 +455,11 @@ class OutputDir:
         # a run that adds to DIR under a manifest of its own (fitstiff report) reads DIR's
         # results: those stay writable for the next step of the run that made them (a refit,
         # a --resume), which a report must not block. Other inputs stay protected.
-        main = [r for r in self._records if r.manifest.name == "manifest.json"]
+        main = [r for r in self._records if r.manifest.name == _MAIN_MANIFEST]
         own = ({_real(self.path / name) for r in main for name in r.outputs}
                | {_real(r.manifest) for r in main})
         for record in self._records:
-            adds_on = record.manifest.name != "manifest.json"
+            adds_on = record.manifest.name != _MAIN_MANIFEST
             for p in record.inputs:
                 if not (adds_on and p in own):
                     out.setdefault(p, f"is an input of the run recorded in {record.manifest}")

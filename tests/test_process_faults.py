@@ -177,8 +177,8 @@ def test_a_chain_survives_a_full_disk_and_resumes(tmp_path):
     kept, and --resume finishes it once there is room."""
     args = ["posterior", LOG, "--model", "chamber+dahl", "--walkers", "16", "--steps", "3000",
             "--check-every", "500", "--draws", "5"]
-    with small_disk(tmp_path, "8m") as disk:
-        fill(disk, 4400)
+    with small_disk(tmp_path, "2m") as disk:
+        fill(disk, 400)
         out = disk / "post"
         proc = fitstiff(*args, "--out", out)
         assert proc.returncode == 2, proc.stderr
