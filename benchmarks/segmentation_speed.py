@@ -9,6 +9,7 @@ so the figure is a ratio that does not depend on the machine's speed.
 
 from __future__ import annotations
 
+import argparse
 import time
 
 import numpy as np
@@ -17,8 +18,11 @@ from fitstiff.log import Log
 from fitstiff.segmentation import segment
 
 
-def main() -> None:
-    n, cycles = 1_000_000, 200
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--samples", type=int, default=1_000_000,
+                        help="samples of the log (default 1 000 000)")
+    n, cycles = parser.parse_args(argv).samples, 200
     phase = (np.arange(n) % (n / cycles)) / (n / cycles)
     x = 2e-3 * (2 * np.abs(2 * phase - 1) - 1) + np.random.default_rng(0).normal(0, 1e-6, n)
     log = Log(name="big", displacement=x, force=np.zeros(n), time=np.arange(n) / 1000.0)

@@ -217,6 +217,10 @@ class FitResult:
                  + ("converged" if self.converged else f"NOT CONVERGED ({self.message})")
                  + f" after {self.steps} steps; rms {self.rms_N:.4g} N over {self.n_data} data",
                  self.identifiability.line()]
+        if self.starts.get("requested", 1) > 1:
+            lines.insert(1, f"starts: {self.starts['requested']} requested, "
+                            f"{self.starts['converged']} converged, {self.starts['agreed']} "
+                            "agreed with the best (cost within 1e-6, parameters within 0.1 %)")
         lines.append(f"  {'parameter':<22}{'value':>14}{'stderr':>12}  unit")
         for name, p in self.parameters().items():
             err = "fixed" if p.get("fixed") else ("n/d" if p["stderr"] is None

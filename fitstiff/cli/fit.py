@@ -59,11 +59,15 @@ def add_fit_arguments(parser: argparse.ArgumentParser) -> None:
                        help="also fit this per-log nuisance: closing_pressure (each log's "
                             "closing pressure of its closed chambers; supply_bar then only "
                             "starts it)")
-    group.add_argument("--solver", choices=sorted(SOLVERS), default="lm")
+    group.add_argument("--solver", choices=sorted(SOLVERS), default="lm",
+                       help="least-squares solver (default lm, optimistix's "
+                            "Levenberg-Marquardt)")
     group.add_argument("--starts", type=int, default=1, metavar="N",
                        help="random restarts around the data-driven start (default 1)")
-    group.add_argument("--seed", type=int, default=0)
-    group.add_argument("--max-steps", type=int, default=400, metavar="N")
+    group.add_argument("--seed", type=int, default=0,
+                       help="seed of the random restarts of --starts (default 0)")
+    group.add_argument("--max-steps", type=int, default=400, metavar="N",
+                       help="solver steps per start before it gives up (default 400)")
     add_data_arguments(group)
 
 
