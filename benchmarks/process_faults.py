@@ -69,9 +69,16 @@ def _disk(work: Path, size: str, leave_kib: int):
         subprocess.run(["umount", "-l", str(mount)], check=False)
 
 
+def _default_signals() -> None:
+    """A shell's background job starts with SIGINT ignored, and fitstiff keeps an ignored
+    signal ignored (as ``nohup`` asks): give the child the disposition of a terminal's."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _run(env, args, *, cwd, signal_after=None, close_stdout=False):
     proc = subprocess.Popen([sys.executable, "-m", "fitstiff", *map(str, args)], env=env,
-                            cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=_default_signals)
     if close_stdout:
         proc.stdout.close()
         err = proc.stderr.read()
@@ -158,10 +165,17 @@ def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--tree", action="append", required=True, metavar="NAME=PATH")
     parser.add_argument("--json", type=Path, default=JSON_PATH)
+    parser.add_argument("--only", metavar="TEXT",
+                        help="run only the cases whose name holds TEXT; the others are kept "
+                             "from the JSON")
     args = parser.parse_args(argv)
     trees = dict(t.split("=", 1) for t in args.tree)
     results: dict[str, dict[str, object]] = {}
+    if args.only and args.json.exists():
+        results = json.loads(args.json.read_text())["cases"]
     for name, go in cases():
+        if args.only and args.only not in name:
+            continue
         results[name] = {}
         for tree, path in trees.items():
             env = dict(os.environ, PYTHONPATH=str(Path(path).resolve()), FITSTIFF_CACHE_DIR="",
@@ -180,7 +194,8 @@ def main(argv=None) -> None:
         print(name, json.dumps(results[name])[:300], flush=True)
     args.json.write_text(json.dumps({"trees": trees, "cases": results}, indent=2) + "\n")
     print("\n| case | " + " | ".join(trees) + " |\n|---|" + "---|" * len(trees))
-    for name, per_tree in results.items():
+    for name, per_tree in sorted(results.items(), key=lambda kv: [c[0] for c in cases()]
+                                 .index(kv[0])):
         cells = []
         for tree in trees:
             r = per_tree[tree]

@@ -29,6 +29,12 @@ def fitstiff(*args, **kw) -> subprocess.CompletedProcess:
                           capture_output=True, text=True, timeout=300, **kw)
 
 
+def default_signals() -> None:
+    """SIGINT as a terminal's foreground job has it (a background job starts with it
+    ignored, and fitstiff keeps an ignored signal ignored, as ``nohup`` asks)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def one_line(proc) -> str:
     lines = proc.stderr.splitlines()
     assert len(lines) == 1, proc.stderr
@@ -64,7 +70,7 @@ def test_a_signal_ends_a_command_with_one_line_and_the_shells_code(tmp_path, sig
     out = tmp_path / "out"
     proc = subprocess.Popen([sys.executable, "-m", "fitstiff", "fit", str(LOG), "--out",
                              str(out)], env=ENV, stdout=subprocess.DEVNULL,
-                            stderr=subprocess.PIPE, text=True)
+                            stderr=subprocess.PIPE, text=True, preexec_fn=default_signals)
     time.sleep(after_s)
     proc.send_signal(signum)
     _, err = proc.communicate(timeout=120)
