@@ -69,16 +69,23 @@ def _disk(work: Path, size: str, leave_kib: int):
         subprocess.run(["umount", "-l", str(mount)], check=False)
 
 
-def _default_signals() -> None:
-    """A shell's background job starts with SIGINT ignored, and fitstiff keeps an ignored
-    signal ignored (as ``nohup`` asks): give the child the disposition of a terminal's."""
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
+@contextlib.contextmanager
+def _terminal_sigint():
+    """A shell's background job starts with SIGINT ignored, which fitstiff keeps ignored (as
+    ``nohup`` asks); only an ignored disposition is inherited, so the parent handles SIGINT
+    while it starts the child, which then has a terminal's."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def _run(env, args, *, cwd, signal_after=None, close_stdout=False):
-    proc = subprocess.Popen([sys.executable, "-m", "fitstiff", *map(str, args)], env=env,
-                            cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            preexec_fn=_default_signals)
+    with _terminal_sigint():
+        proc = subprocess.Popen([sys.executable, "-m", "fitstiff", *map(str, args)], env=env,
+                                cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                text=True)
     if close_stdout:
         proc.stdout.close()
         err = proc.stderr.read()

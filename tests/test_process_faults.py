@@ -29,10 +29,18 @@ def fitstiff(*args, **kw) -> subprocess.CompletedProcess:
                           capture_output=True, text=True, timeout=300, **kw)
 
 
-def default_signals() -> None:
-    """SIGINT as a terminal's foreground job has it (a background job starts with it
-    ignored, and fitstiff keeps an ignored signal ignored, as ``nohup`` asks)."""
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
+@contextlib.contextmanager
+def terminal_sigint():
+    """A child started in the block gets SIGINT as a terminal's foreground job has it: a
+    shell's background job (and its children) start with SIGINT ignored, which fitstiff keeps
+    ignored, as ``nohup`` asks. Only an ignored disposition is inherited, so the parent
+    handles it for the moment of the start (no ``preexec_fn``: a fork of a process with JAX's
+    threads that runs Python code may deadlock)."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def one_line(proc) -> str:
@@ -68,9 +76,10 @@ def test_a_signal_ends_a_command_with_one_line_and_the_shells_code(tmp_path, sig
     traceback, the output directory as it was (a SIGINT while JAX's extension modules load used
     to crash the interpreter; SIGTERM exited 130 or, outside posterior, left a stale lock)."""
     out = tmp_path / "out"
-    proc = subprocess.Popen([sys.executable, "-m", "fitstiff", "fit", str(LOG), "--out",
-                             str(out)], env=ENV, stdout=subprocess.DEVNULL,
-                            stderr=subprocess.PIPE, text=True, preexec_fn=default_signals)
+    with terminal_sigint():
+        proc = subprocess.Popen([sys.executable, "-m", "fitstiff", "fit", str(LOG), "--out",
+                                 str(out)], env=ENV, stdout=subprocess.DEVNULL,
+                                stderr=subprocess.PIPE, text=True)
     time.sleep(after_s)
     proc.send_signal(signum)
     _, err = proc.communicate(timeout=120)
