@@ -545,6 +545,39 @@ class _Report:
     summary: str                       # HTML
     sections: tuple[_Section, ...]
     summary_title: str = "Estimates"
+    #: the numbers engineers quote, in one line at the top (:func:`_quote`); empty for none
+    numbers: str = ""
+
+
+#: the quantities of the report's first line: (derived name, label)
+_QUOTED = (("presliding_slope_N_per_mm", "pre-sliding slope"), ("breakaway_N", "breakaway"))
+
+
+def _quote(entries: Mapping[str, Mapping[str, Any]], *, posterior: bool) -> str:
+    """``pre-sliding slope 40.01 N/mm [39.98, 40.04], breakaway 18.000 N [17.985, 18.016]
+    (90 % intervals)``: the derived quantities of a fit (estimate ± 1.645 standard errors) or
+    a posterior (median, 5-95 %), each to the digits its uncertainty warrants; "not
+    determined" where the data leave one without an uncertainty."""
+    parts = []
+    for name, label in _QUOTED:
+        e = entries.get(name)
+        if e is None:
+            continue
+        unit = split_unit(name)[1]
+        if posterior:
+            value, spread = e["q50"], e.get("std")
+            low, high = e.get("q05"), e.get("q95")
+        else:
+            value, spread = e["value"], e.get("stderr")
+            low = None if spread is None else value - _Z90 * spread
+            high = None if spread is None else value + _Z90 * spread
+        if spread is None or low is None or high is None:
+            parts.append(f"{label} {_fmt(value)} {unit} (not determined)")
+        else:
+            parts.append(f"{label} {_fmt_to(value, spread)} {unit} "
+                         f"[{_fmt_to(low, spread)}, {_fmt_to(high, spread)}]")
+    text = ", ".join(parts)
+    return f"{text[:1].upper()}{text[1:]} (90 % intervals)" if parts else ""
 
 
 def _fit_report(run: RunDirectory, *, draws: int) -> _Report:
@@ -558,7 +591,8 @@ def _fit_report(run: RunDirectory, *, draws: int) -> _Report:
                + _DEFINITIONS
                + _log_table(run.problem, curves, offsets))
     return _Report(f"Fit report: {run.result['model']}", _fit_verdict(run.result), summary,
-                   tuple(_model_sections(run.problem, curves)))
+                   tuple(_model_sections(run.problem, curves)),
+                   numbers=_quote(run.result["derived"], posterior=False))
 
 
 def _posterior_report(run: RunDirectory, *, draws: int) -> _Report:
@@ -584,7 +618,8 @@ def _posterior_report(run: RunDirectory, *, draws: int) -> _Report:
                  figures=tuple(_chain_figures(run, chain))),
     ]
     return _Report(f"Posterior report: {run.posterior.model}",
-                   _posterior_verdict(run.posterior, rms), summary, tuple(sections))
+                   _posterior_verdict(run.posterior, rms), summary, tuple(sections),
+                   numbers=_quote(run.posterior.derived, posterior=True))
 
 
 def _diagnosis_report(run: RunDirectory, *, draws: int) -> _Report:
@@ -864,6 +899,7 @@ h2 { font-size: 1.25em; border-bottom: 1px solid #ccc; padding-bottom: 0.2em; ma
 .verdict.caution { border-color: #e0a800; background: #fdf6e0; }
 .verdict.bad { border-color: #c62828; background: #fdecea; }
 .verdict .headline { font-weight: 600; margin: 0 0 0.4em; }
+.numbers { font-size: 1.25em; font-weight: 600; margin: 0.4em 0 0.8em; }
 .verdict ul { margin: 0; padding-left: 1.3em; }
 table { border-collapse: collapse; margin: 0.8em 0; font-size: 0.92em; }
 th, td { border: 1px solid #ccc; padding: 0.25em 0.6em; }
@@ -888,6 +924,7 @@ def _html(report: _Report, run: RunDirectory, images: Mapping[str, str]) -> str:
         f'<p class="meta">{html.escape(str(run.path))} &middot; '
         f"{html.escape(run.manifest.get('command', ''))} &middot; fitstiff {__version__}, "
         f"report made {created}</p>",
+        (f'<p class="numbers">{html.escape(report.numbers)}</p>' if report.numbers else ""),
         f'<div class="verdict {v.status}"><p class="headline">{html.escape(v.headline)}</p>'
         + (f"<ul>{details}</ul>" if details else "") + "</div>",
         f"<h2>{html.escape(report.summary_title)}</h2>", report.summary,

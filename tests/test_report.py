@@ -72,6 +72,9 @@ def test_demo_ends_in_a_posterior_report(demo):
     check_page(report, figures)
     page = report.read_text(encoding="utf-8")
     assert "Posterior report: chamber+dahl" in page
+    # issue 35: the numbers engineers quote open the page (median, 5-95 %)
+    assert re.search(r'<p class="numbers">Pre-sliding slope 4\d\.\d+ N/mm \[[0-9.]+, [0-9.]+\], '
+                     r'breakaway 1\d\.\d+ N \[[0-9.]+, [0-9.]+\] \(90 % intervals\)</p>', page)
     # a 120-step chain: the verdict says it did not converge, and why
     assert re.search(r"The chain did NOT converge: [^<]*--steps 120", page)
     assert re.search(r"Mean acceptance fraction 0\.\d\d", page)
@@ -99,7 +102,17 @@ def test_fit_report(tmp_path):
     page = report.read_text(encoding="utf-8")
     assert "Fit report: chamber+dahl" in page
     assert "The fit converged (lm, " in page
-    assert re.search(r"against a force noise estimate of [0-9.]+ N\.", page)
+    # issue 35: the numbers engineers quote open the page, each interval estimate ± 1.645
+    # se; a quantity the data leave without an error says so (here the breakaway: 600 samples)
+    data = json.loads((tmp_path / "fit.json").read_text())["derived"]
+    quote = re.search(r'<p class="numbers">Pre-sliding slope ([0-9.]+) N/mm \[([0-9.]+), '
+                      r'([0-9.]+)\], breakaway ([0-9.]+) N (\(not determined\)|\[[^]]*\])', page)
+    slope, breakaway = data["presliding_slope_N_per_mm"], data["breakaway_N"]
+    value, low, high = map(float, quote.groups()[:3])
+    assert value == pytest.approx(slope["value"], rel=1e-3)
+    assert high - low == pytest.approx(2 * 1.645 * slope["stderr"], rel=0.05)
+    assert float(quote.group(4)) == pytest.approx(breakaway["value"], rel=1e-3)
+    assert (quote.group(5) == "(not determined)") == (breakaway["stderr"] is None)
     # issue 17 item 5: the samples outside --range are drawn as not fitted, the RMS is theirs
     assert "Light grey: samples outside the fitted range (not fitted)." in page
     assert "over the 600 fitted samples" in page
