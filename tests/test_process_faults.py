@@ -90,6 +90,24 @@ def test_a_signal_ends_a_command_with_one_line_and_the_shells_code(tmp_path, sig
     assert left_behind(out) == []
 
 
+def test_an_ignored_sigint_stays_ignored(tmp_path):
+    """A command started with SIGINT ignored (``nohup``, a shell's background job) keeps it
+    so, as Python itself does: the fit runs to its end."""
+    out = tmp_path / "out"
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        proc = subprocess.Popen([sys.executable, "-m", "fitstiff", "fit", str(LOG), "--out",
+                                 str(out)], env=ENV, stdout=subprocess.DEVNULL,
+                                stderr=subprocess.PIPE, text=True)
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    time.sleep(1.0)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=300)
+    assert proc.returncode == 0, err
+    assert {"fit.json", "manifest.json"} <= set(left_behind(out))
+
+
 def _sidecar_with_null(tmp_path):
     log = shutil.copy(LOG, tmp_path / "log.csv")
     sidecar = json.loads(LOG.with_suffix(".json").read_text())
