@@ -442,8 +442,19 @@ def _entries(parameters: Mapping[str, Mapping[str, Any]],
     out = [(name, name, p) for name, p in parameters.items()]
     for name, d in derived.items():
         label, unit = split_unit(name)
-        out.append((name, label, {"unit": unit} | d))
+        # a derived quantity that is a parameter of the model (Dahl's sigma0 is its pre-sliding
+        # slope, Fc its breakaway) says so instead of reading as a second estimate
+        same = next((n for n, p in parameters.items() if p.get("unit") == unit
+                     and _center(p) is not None and _center(d) is not None
+                     and math.isclose(_center(p), _center(d), rel_tol=1e-9)), None)
+        out.append((name, f"{label} (= {same})" if same else label, {"unit": unit} | d))
     return out
+
+
+def _center(entry: Mapping[str, Any]) -> float | None:
+    """A fit entry's value or a posterior entry's median."""
+    value = entry.get("value", entry.get("q50"))
+    return None if value is None else float(value)
 
 
 def _fit_tables(run: RunDirectory, truth: Mapping[str, float]) -> str:

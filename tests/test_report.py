@@ -119,6 +119,11 @@ def test_fit_report(tmp_path):
     # one pressure: the friction table without the plot
     assert "Friction against pressure" in page and "friction_vs_pressure" not in page
     assert re.search(r"<td class=\"name\">Fc</td><td class=\"num\">18\.\d*</td>", page)
+    # issue 35: Dahl's sigma0 and Fc are its pre-sliding slope and breakaway: the derived
+    # rows say so instead of reading as second estimates
+    assert '<td class="name">presliding_slope (= sigma0)</td>' in page
+    assert '<td class="name">breakaway (= Fc)</td>' in page
+    assert '<td class="name">presliding_range</td>' in page
     assert json.loads((tmp_path / REPORT_MANIFEST).read_text())["options"]["kind"] == "fit"
 
 
