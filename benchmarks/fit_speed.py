@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import subprocess
 import sys
@@ -37,38 +36,10 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import least_squares
 
-from fitstiff._testing.speed import make_log
+from fitstiff._testing.speed import make_log, reference_residuals
 from fitstiff.fitting import fit_problem, initial_guess
 from fitstiff.problem import Problem
 from fitstiff.simulate import write_log
-
-
-def reference_residuals(p, x, force, p_a, p_b, rig, sigma_f, sigma_p):
-    """NumPy per-sample loop: exact Dahl + exact polytropic chamber (what a user writes)."""
-    n, sigma0, fc, offset, state0 = p
-    area = rig.area_a
-    l_a0 = rig.start_position
-    l_b0 = rig.stroke - rig.start_position
-    p0 = rig.supply_pressure + rig.ambient_pressure
-    amb = rig.ambient_pressure
-    out_f = np.empty_like(x)
-    out_pa = np.empty_like(x)
-    out_pb = np.empty_like(x)
-    f = state0 * fc
-    prev = x[0]
-    for k in range(x.shape[0]):
-        dx = x[k] - prev
-        prev = x[k]
-        d = math.copysign(1.0, dx) if dx != 0 else 0.0
-        f = d * fc + (f - d * fc) * math.exp(-sigma0 * abs(dx) / fc)
-        u = x[k] - x[0]                # the chambers close at the first sample
-        pa = p0 * (l_a0 / (l_a0 + u)) ** n
-        pb = p0 * (l_b0 / (l_b0 - u)) ** n
-        out_f[k] = f + area * (pb - amb) - area * (pa - amb) + offset
-        out_pa[k] = pa
-        out_pb[k] = pb
-    return np.concatenate([(out_f - force) / sigma_f, (out_pa - p_a) / sigma_p,
-                           (out_pb - p_b) / sigma_p])
 
 
 def time_reference(problem, start):

@@ -22,7 +22,7 @@ realistic noise), fitted by least squares, then:
   log-posterior evaluations per second of a running chain (the proposals and emcee's own
   work included), against the same reference rate (``sampler_speedup``).
 - **reference**: the same log-posterior as a user would write it with NumPy: the per-sample
-  loop of :func:`benchmarks.fit_speed.reference_residuals` (exact Dahl step, exact polytropic
+  loop of :func:`fitstiff._testing.speed.reference_residuals` (exact Dahl step, exact polytropic
   chamber) called once per walker, the same AR(1) likelihood with the turning-point errors
   integrated out, priors and Jacobians. Both give the same values up to one constant over the
   walkers (checked: the run stops if the difference varies by more than 1e-3). The two are
@@ -37,7 +37,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import tempfile
 import time
 from pathlib import Path
@@ -45,48 +44,13 @@ from pathlib import Path
 import emcee
 import numpy as np
 
-from benchmarks.fit_speed import reference_residuals
-from fitstiff._testing.speed import make_log
+from fitstiff._testing.speed import make_log, reference_log_posterior
 from fitstiff.fitting import fit_problem
 from fitstiff.posterior import DEFAULT_MOVES, MOVES, log_posterior, sample_posterior
 from fitstiff.problem import Problem
 
 WALKERS = 32
 REFERENCE_WALKERS = 8       # reference evaluations per round (scaled to WALKERS)
-
-
-def reference_log_posterior(theta: np.ndarray, problem: Problem, noise) -> float:
-    """NumPy log-posterior of ``theta = [logit n, log sigma0, log Fc, offset, atanh s0]``:
-    AR(1) errors per channel (``noise.phi``) with the scale integrated out, the turning-point
-    displacement errors integrated out with the Woodbury terms ``noise.marginal`` prepared at
-    the least-squares optimum (constants of the run, as in fitstiff), log-normal priors on
-    sigma0 and Fc, the transforms' log-Jacobians."""
-    n_par = problem.model.term("chamber").params()[0]
-    lo, hi = n_par.lower, n_par.upper
-    y_n, y_s, y_f, offset, y_0 = theta
-    n = lo + (hi - lo) / (1 + math.exp(-y_n))
-    sigma0, fc, state0 = math.exp(y_s), math.exp(y_f), math.tanh(y_0)
-    log = problem.logs[0]
-    x = np.asarray(problem.drives[0].displacement)
-    r = reference_residuals((n, sigma0, fc, offset, state0), x, log.force, log.pressure_a,
-                            log.pressure_b, log.rig, problem.force_noise[0], 1.0)
-    k = x.size
-    scale = problem.pressure_noise[0]
-    series = (r[:k], r[k:2 * k] / scale["a"], r[2 * k:] / scale["b"])
-    whitened = [np.concatenate([[math.sqrt(1 - p**2) * e[0]], e[1:] - p * e[:-1]])
-                for e, p in zip(series, noise.phi)]
-    squares = [float(w @ w) for w in whitened]
-    if noise.marginal is not None:                        # e'e - v' M v per force series
-        m = noise.marginal
-        v = np.asarray(m.project(np.concatenate(whitened)))
-        for column_series, term in zip(m.series, v * (m.inverse @ v)):
-            squares[column_series] -= term
-    lp = -0.5 * k * sum(math.log(q) for q in squares)
-    for value, median in ((sigma0 / 1e3, 40.0), (fc, 18.0)):             # log-normal priors
-        lp += -math.log(value) - 0.5 * (math.log(value / median) / math.log(10.0)) ** 2
-    u = (n - lo) / (hi - lo)
-    lp += math.log((hi - lo) * u * (1 - u)) + y_s + y_f + math.log(1 - state0**2)
-    return lp
 
 
 def main() -> None:

@@ -526,7 +526,7 @@ def test_default_posterior_benchmark_runs_small(tmp_path):
 def test_speed_benchmark_reference_is_the_same_log_posterior():
     """benchmarks/posterior_speed.py compares against a NumPy log-posterior; it must be the
     same function (up to one constant), or the speed-up means nothing."""
-    from benchmarks.posterior_speed import reference_log_posterior
+    from fitstiff._testing.speed import reference_log_posterior
     from fitstiff._testing.speed import make_log
     from fitstiff.fitting import fit_problem
     from fitstiff.posterior import log_posterior
