@@ -564,10 +564,6 @@ class Problem:
                 out[i] = values[row, :len(self.logs[i])]
         return out  # type: ignore[return-value]
 
-    def nuisance_template(self, theta=None) -> dict[str, np.ndarray]:
-        _, nuisances = self.unpack(self.pack(self.model) if theta is None else theta)
-        return {k: np.asarray(v) for k, v in nuisances.items()}
-
     @property
     def par_fixed(self) -> set[str]:
         """Model parameter names held fixed."""

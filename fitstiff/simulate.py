@@ -34,6 +34,7 @@ from pathlib import Path
 import numpy as np
 from scipy import signal
 
+from fitstiff.derived import derived_quantities
 from fitstiff.drive import Drive, make_drive
 from fitstiff.errors import InputError
 from fitstiff.log import Log, Rig
@@ -104,8 +105,8 @@ class SimulatedLog:
         truth: ground truth as plain JSON types (``json.dumps`` takes it): ``name``, ``model``, ``parameters`` (flat name ->
             ``value`` in display units, ``unit``), ``settings`` (static term settings, SI),
             ``rig`` (sidecar keys), ``noise``, ``seed``, ``rate_hz``, ``samples``,
-            ``program`` (its description), ``derived`` (when :mod:`fitstiff.derived` is
-            available) and ``force_noise_free_N`` (the model's force before noise).
+            ``program`` (its description), ``derived`` (:mod:`fitstiff.derived`) and
+            ``force_noise_free_N`` (the model's force before noise).
         model: the model with the true parameter values.
         drive: the noise-free drive it ran on.
         prediction: the model's noise-free output (force, per-term forces, pressures).
@@ -175,7 +176,7 @@ def simulate(model_or_spec: Model | str, program: Program, *, rig: Rig,
         "rate_hz": float(rate_hz),
         "samples": n,
         "program": program.describe(),
-        **_derived(model, drive),
+        "derived": derived_quantities(model, drive),
         "force_noise_free_N": clean_force,
     }
     return SimulatedLog(log=log, truth=to_jsonable(truth), model=model, drive=drive,
@@ -195,17 +196,6 @@ def _parameter_table(model: Model) -> dict[str, dict[str, object]]:
         for name, v in zip(names, value):
             table[name] = {"value": p.to_display(float(v)), "unit": p.unit}
     return table
-
-
-def _derived(model: Model, drive: Drive) -> dict[str, object]:
-    """``{"derived": ...}`` from :mod:`fitstiff.derived`, or nothing while it does not exist."""
-    try:
-        from fitstiff.derived import derived_quantities
-    except ModuleNotFoundError as exc:
-        if exc.name != "fitstiff.derived":
-            raise
-        return {}
-    return {"derived": derived_quantities(model, drive)}
 
 
 def _check_stroke(x: np.ndarray, rig: Rig, program: Program) -> None:

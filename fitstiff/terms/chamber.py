@@ -19,7 +19,6 @@ import math
 
 import equinox as eqx
 
-from fitstiff import gas_spring
 from fitstiff._jax import jax, jnp
 from fitstiff.drive import chamber_log_ratios
 from fitstiff.params import Param
@@ -220,8 +219,3 @@ class Chamber(ForceSource):
         k_b = self.n * drive.p_b0 * drive.area_b / drive.l_b0 if closed_b else 0.0
         return k_a + k_b
 
-    def exact_force(self, drive, u):
-        """Exact closed-chamber force at displacement ``u`` (both chambers closed)."""
-        return gas_spring.chamber_force(u, p_a0=drive.p_a0, p_b0=drive.p_b0, l_a0=drive.l_a0,
-                                        l_b0=drive.l_b0, area_a=drive.area_a,
-                                        area_b=drive.area_b, n=self.n, p_amb=drive.p_amb)
