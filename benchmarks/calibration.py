@@ -32,8 +32,7 @@ import numpy as np
 from fitstiff._testing.calibration import DRAW_PRIORS, QUANTITIES, dataset
 from fitstiff.fitting import fit
 from fitstiff.posterior import sample_posterior
-
-_Z90 = 1.6448536269514722
+from fitstiff.run import Z90
 
 
 def score(seed: int, *, noise_models=("ar1", "gaussian"), walkers: int = 16, steps: int = 3000,
@@ -49,7 +48,7 @@ def score(seed: int, *, noise_models=("ar1", "gaussian"), walkers: int = 16, ste
     row["least_squares"] = {}
     for key in QUANTITIES:
         value, err = result.derived[key]
-        row["least_squares"][key] = _entry(value - _Z90 * err, value, value + _Z90 * err,
+        row["least_squares"][key] = _entry(value - Z90 * err, value, value + Z90 * err,
                                            truth[key])
     for name in noise_models:
         t0 = time.perf_counter()
@@ -87,7 +86,7 @@ def agreement(rows, noise_model: str, key: str) -> tuple[float, float, float]:
     shift, width = [], []
     for r in rows:
         ls, post = r["least_squares"][key], r[noise_model][key]
-        se = (ls["q95"] - ls["q05"]) / (2 * _Z90)
+        se = (ls["q95"] - ls["q05"]) / (2 * Z90)
         shift.append(abs(post["q50"] - ls["q50"]) / se)
         width.append((post["q95"] - post["q05"]) / (ls["q95"] - ls["q05"]))
     return float(np.median(shift)), float(np.max(shift)), float(np.median(width))

@@ -10,11 +10,9 @@ import numpy as np
 
 from fitstiff.log import Log
 from fitstiff.segmentation import SPEED_BANDS, Segmentation, segment
+from fitstiff.units import BAR, MM
 
 __all__ = ["format_summary", "inspect_log"]
-
-MM = 1e-3
-BAR = 1e5
 
 
 def _range(values: np.ndarray, scale: float) -> dict[str, float]:

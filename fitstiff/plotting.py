@@ -52,8 +52,9 @@ from fitstiff.errors import InputError
 from fitstiff.log import Log, Rig
 from fitstiff.model import Model
 from fitstiff.segmentation import REGIONS, Segmentation
-from fitstiff.stiffness import MM, chamber_stiffness, table_positions
+from fitstiff.stiffness import chamber_stiffness, table_positions
 from fitstiff.terms import FrictionBase
+from fitstiff.units import MM
 
 if TYPE_CHECKING:
     from fitstiff.fitting import FitResult

@@ -49,11 +49,10 @@ from typing import ClassVar, Protocol, runtime_checkable
 import numpy as np
 
 from fitstiff.errors import InputError
+from fitstiff.units import MM
 
 __all__ = ["Program", "Ramp", "Pause", "Waypoints", "TriangleCycles", "NestedLoops",
            "SineSweep", "Concat", "PAUSE_AT"]
-
-MM = 1e-3
 
 #: where :class:`Waypoints`-based programs may pause: at direction reversals, or at joints the
 #: motion passes through without reversing (e.g. the zero crossings of triangle cycles)

@@ -45,9 +45,9 @@ from fitstiff.model import Model
 from fitstiff.output import OutputDir
 from fitstiff.posterior import INFERENCE_DATA, PosteriorRecord
 from fitstiff.problem import Problem
-from fitstiff.run import (MANIFEST, RESULT_FILES, Chain, Curves, RunDirectory, fit_curves,
-                          open_run, posterior_curves, read_chain, read_json)
-from fitstiff.stiffness import MM
+from fitstiff.run import (MANIFEST, RESULT_FILES, Z90, Chain, Curves, RunDirectory,
+                          fit_curves, open_run, posterior_curves, read_chain, read_json)
+from fitstiff.units import MM
 
 __all__ = ["FIGURES", "PLANNED", "REPORT", "REPORT_MANIFEST", "RESULT_FILES", "ReportFigure",
            "RunDirectory", "open_run", "write_report"]
@@ -58,7 +58,6 @@ REPORT_MANIFEST = "report.manifest.json"
 PLANNED = (REPORT, f"{FIGURES}/")
 """What a report writes into its directory (besides :data:`REPORT_MANIFEST`)."""
 
-_Z90 = 1.6448536269514722       # two-sided 90 % of a standard normal
 _POSTERIOR_RMS_EXCESS = 0.10    # median curve worse than least squares by more: say so
 _DPI = 100
 _METADATA = {"png": {"Software": None}, "svg": {"Date": None}}
@@ -467,8 +466,8 @@ def _fit_tables(run: RunDirectory, truth: Mapping[str, float]) -> str:
             spread, interval = "n/a", "n/a (not determined)"
         else:
             spread = _fmt_to(stderr, stderr)
-            interval = (f"{_fmt_to(value - _Z90 * stderr, stderr)} to "
-                        f"{_fmt_to(value + _Z90 * stderr, stderr)}")
+            interval = (f"{_fmt_to(value - Z90 * stderr, stderr)} to "
+                        f"{_fmt_to(value + Z90 * stderr, stderr)}")
         rows.append([label, _fmt_to(value, stderr), spread, interval, e["unit"],
                      _fmt(truth.get(name))])
     return _table(["quantity", "estimate", "standard error", "90 % interval", "unit", "truth"],
@@ -580,8 +579,8 @@ def _quote(entries: Mapping[str, Mapping[str, Any]], *, posterior: bool) -> str:
             low, high = e.get("q05"), e.get("q95")
         else:
             value, spread = e["value"], e.get("stderr")
-            low = None if spread is None else value - _Z90 * spread
-            high = None if spread is None else value + _Z90 * spread
+            low = None if spread is None else value - Z90 * spread
+            high = None if spread is None else value + Z90 * spread
         if spread is None or low is None or high is None:
             parts.append(f"{label} {_fmt(value)} {unit} (not determined)")
         else:

@@ -51,14 +51,14 @@ from fitstiff.posterior import PREDICTIVE, Posterior, PosteriorRecord
 from fitstiff.problem import NUISANCES, PROBLEM_OPTIONS, Problem
 from fitstiff.terms import FrictionBase
 
-__all__ = ["MANIFEST", "RESULT_FILES", "Chain", "Curves", "RunDirectory", "fit_curves",
+__all__ = ["MANIFEST", "RESULT_FILES", "Z90", "Chain", "Curves", "RunDirectory", "fit_curves",
            "open_run", "posterior_curves", "read_chain", "read_json", "term_labels"]
 
 MANIFEST = "manifest.json"
 RESULT_FILES: Mapping[str, str] = {"posterior": "posterior.json", "fit": "fit.json",
                                    "diagnosis": "diagnosis.json"}
 """Run kind -> the result file that makes a directory one of that kind (checked in order)."""
-_Z90 = 1.6448536269514722       # two-sided 90 % of a standard normal
+Z90 = 1.6448536269514722        # two-sided 90 % of a standard normal (the reports' intervals)
 _REPRODUCE_RTOL = 1e-3          # recomputed per-log RMS against fit.json
 
 
@@ -343,7 +343,7 @@ def posterior_curves(run: RunDirectory, chain: Chain, *, draws: int) -> Curves:
     force, band, contributions = [], [], []
     for i, log in enumerate(problem.logs):
         sd = scale[f"force[{log.name}]"][0]
-        half = _Z90 * np.sqrt(spreads[i] ** 2 + sd**2)
+        half = Z90 * np.sqrt(spreads[i] ** 2 + sd**2)
         force.append(centres[i])
         band.append((centres[i] - half, centres[i] + half))
         contributions.append(dict(zip(labels, np.asarray(terms[i]).T)))

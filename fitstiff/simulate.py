@@ -43,6 +43,7 @@ from fitstiff.output import to_jsonable, write_atomic
 from fitstiff.params import Parameterization, named_params, to_si
 from fitstiff.programs import Program
 from fitstiff.segmentation import standstill
+from fitstiff.units import BAR
 
 __all__ = ["Noise", "SimulatedLog", "simulate", "format_log", "write_log", "DEFAULT_RATE_HZ",
            "CSV_DIGITS"]
@@ -50,7 +51,6 @@ __all__ = ["Noise", "SimulatedLog", "simulate", "format_log", "write_log", "DEFA
 DEFAULT_RATE_HZ = 1000.0
 #: significant digits of every number written by :func:`format_log`
 CSV_DIGITS = 9
-_BAR = 1e5
 _ARRAY = "@array:"  # placeholder of a one-line array in _json (never a truth string)
 
 
@@ -229,7 +229,7 @@ def format_log(log: Log, *, truth: Mapping[str, object] | None = None,
     for chamber in ("a", "b"):
         pressure = log.pressure_a if chamber == "a" else log.pressure_b
         if pressure is not None:
-            columns[f"p_{chamber}_bar"] = (pressure - log.rig.ambient_pressure) / _BAR
+            columns[f"p_{chamber}_bar"] = (pressure - log.rig.ambient_pressure) / BAR
     table = io.StringIO()
     np.savetxt(table, np.column_stack(list(columns.values())), fmt=f"%.{digits}g",
                delimiter=",", header=",".join(columns), comments="")

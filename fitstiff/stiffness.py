@@ -31,6 +31,7 @@ import numpy as np
 from fitstiff import gas_spring
 from fitstiff.errors import InputError
 from fitstiff.log import Rig
+from fitstiff.units import BAR, MM
 
 __all__ = [
     "ADIABATIC_AIR",
@@ -44,11 +45,6 @@ __all__ = [
     "table_positions",
 ]
 
-MM = 1e-3
-"""Metres per millimetre (the scale of fitstiff.log.RIG_KEYS: SI = mm * MM, mm = SI / MM)."""
-
-BAR = 1e5
-"""Pascal per bar."""
 
 ADIABATIC_AIR = 1.4
 """Polytropic exponent of air under fast (adiabatic) compression; the paper's value."""

@@ -23,7 +23,13 @@ from typing import Literal
 
 from fitstiff.errors import InputError
 
-__all__ = ["Kind", "KINDS", "UnitSpec", "parse_unit"]
+__all__ = ["BAR", "MM", "Kind", "KINDS", "UnitSpec", "parse_unit"]
+
+MM = 1e-3
+"""Metres per millimetre (the scale of fitstiff.log.RIG_KEYS: SI = mm * MM, mm = SI / MM)."""
+
+BAR = 1e5
+"""Pascal per bar."""
 
 Kind = Literal["time", "length", "force", "pressure"]
 
