@@ -201,8 +201,8 @@ def main(argv=None) -> None:
         print(name, json.dumps(results[name])[:300], flush=True)
     args.json.write_text(json.dumps({"trees": trees, "cases": results}, indent=2) + "\n")
     print("\n| case | " + " | ".join(trees) + " |\n|---|" + "---|" * len(trees))
-    for name, per_tree in sorted(results.items(), key=lambda kv: [c[0] for c in cases()]
-                                 .index(kv[0])):
+    order = [name for name, _ in cases()]
+    for name, per_tree in sorted(results.items(), key=lambda kv: order.index(kv[0])):
         cells = []
         for tree in trees:
             r = per_tree[tree]
