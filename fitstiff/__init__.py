@@ -29,6 +29,7 @@ _LAZY = {
     "simulate": "fitstiff.simulate", "Noise": "fitstiff.simulate",
     "diagnose": "fitstiff.diagnosis", "Diagnosis": "fitstiff.diagnosis",
     "write_report": "fitstiff.report",
+    "fit_fleet": "fitstiff.fleet",
 }
 
 __all__ = ["FitstiffError", "InputError", "__version__", *_LAZY]

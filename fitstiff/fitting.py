@@ -41,11 +41,11 @@ from fitstiff.log import Log
 from fitstiff.model import Model
 from fitstiff.noise import marginal_scale
 from fitstiff.params import Parameterization, named_params, to_display, to_si
-from fitstiff.problem import NUISANCE_PARAMS, Problem
+from fitstiff.problem import NUISANCE_PARAMS, Problem, compiled_batch
 from fitstiff.spikes import UNTRUSTED as _UNTRUSTED
 from fitstiff.terms.base import FrictionBase, FrictionEstimate, Modifier
 
-__all__ = ["FitResult", "fit", "fit_problem", "initial_guess", "SOLVERS", "LEAN_JACOBIAN_MB"]
+__all__ = ["FitResult", "fit", "fit_problem", "fit_problems", "initial_guess", "SOLVERS", "LEAN_JACOBIAN_MB"]
 
 
 class NormalEquationsLM(NamedTuple):
@@ -405,15 +405,20 @@ def _solver(problem: Problem, solver: str, rtol: float, atol: float, max_steps: 
                                 max_steps=max_steps)
 
     def run(theta0) -> _Run:
-        theta, status, steps, cost = compiled(theta0)
-        if own:
-            code = int(status)
-            return _Run(theta, code == lm.CONVERGED, code == lm.MAX_STEPS, lm.STATUS[code],
-                        int(steps), float(cost))
-        return _Run(theta, bool(status == optx.RESULTS.successful), _out_of_steps(status),
-                    str(optx.RESULTS[status]), int(steps), float(cost))
+        return _as_run(own, *compiled(theta0))
 
     return run
+
+
+def _as_run(own: bool, theta, status, steps, cost) -> _Run:
+    """A :func:`_solve`'s outputs as a :class:`_Run` (``own``: fitstiff's LM ran, whose
+    status codes are :mod:`fitstiff.lm`'s; else optimistix's)."""
+    if own:
+        code = int(status)
+        return _Run(theta, code == lm.CONVERGED, code == lm.MAX_STEPS, lm.STATUS[code],
+                    int(steps), float(cost))
+    return _Run(theta, bool(status == optx.RESULTS.successful), _out_of_steps(status),
+                str(optx.RESULTS[status]), int(steps), float(cost))
 
 
 def _is_lean(problem: Problem) -> bool:
@@ -470,15 +475,62 @@ def fit_problem(problem: Problem, *, solver: str = "lm", starts: int = 1, seed: 
         start = np.array(theta0)
         if k:
             start[:problem.par.size] += rng.normal(scale=0.5, size=problem.par.size)
-        out = run(jnp.asarray(start))
-        theta, cost = out.theta, out.cost
-        ok = out.converged and bool(np.isfinite(cost))
-        walk = None
-        if out.out_of_steps and np.isfinite(cost):
-            theta, cost, walk = _flat_walk(problem, theta, cost, solver=solver,
-                                           rtol=rtol, atol=atol)
-            ok = walk is not None
-        runs.append((ok, float(cost), np.asarray(theta), out, walk))
+        runs.append(_judged(problem, run(jnp.asarray(start)), solver=solver, rtol=rtol,
+                            atol=atol))
+    return _best_of(problem, runs, solver=solver, starts=starts)
+
+
+def fit_problems(problems: Sequence[Problem], *, solver: str = "lm", max_steps: int = 400,
+                 rtol: float = 1e-5, atol: float = 1e-5, lanes: int = 8) -> list[FitResult]:
+    """Fit many prepared problems, one start each: :func:`fit_problem` of each, with the
+    solves of problems of one structure (:meth:`~fitstiff.problem.Problem.structure_key`)
+    run ``lanes`` at a time as one ``vmap``-ed call (:func:`~fitstiff.problem.compiled_batch`:
+    one compilation per structure, and a lane's result does not depend on its neighbours).
+    What follows a solve (the flat-cost check, the covariance summary) is each problem's own.
+    A fleet's cylinders go through here (:mod:`fitstiff.fleet`)."""
+    if solver not in SOLVERS:
+        raise InputError(None, f"--solver {solver}", "unknown solver",
+                         f"use one of: {', '.join(SOLVERS)}")
+    if lanes < 1:
+        raise InputError(None, f"lanes {lanes}", "must be at least 1", "give 1 or more")
+    groups: dict[object, list[int]] = {}
+    for i, problem in enumerate(problems):
+        key = problem.structure_key()
+        groups.setdefault(("alone", i) if key is None else key, []).append(i)
+    results: list[FitResult | None] = [None] * len(problems)
+    for index in groups.values():
+        chosen = _lean(problems[index[0]], solver)
+        own = SOLVERS[chosen] is NormalEquationsLM
+        for at in range(0, len(index), lanes):
+            chunk = [problems[i] for i in index[at:at + lanes]]
+            theta0 = jnp.stack([p.pack(*initial_guess(p)) for p in chunk])
+            solve = compiled_batch(chunk, _solve, lanes=lanes, solver=chosen, rtol=rtol,
+                                   atol=atol, max_steps=max_steps)
+            outs = jax.tree.map(np.asarray, solve(theta0))    # the status: a pytree
+            for k, (i, problem) in enumerate(zip(index[at:at + lanes], chunk)):
+                lane = jax.tree.map(lambda x: x[k], outs)
+                out = _as_run(own, jnp.asarray(lane[0]), *lane[1:])
+                judged = _judged(problem, out, solver=chosen, rtol=rtol, atol=atol)
+                results[i] = _best_of(problem, [judged], solver=chosen, starts=1)
+    return results
+
+
+def _judged(problem: Problem, out: _Run, *, solver: str, rtol: float, atol: float):
+    """One start's ``(ok, cost, theta, run, walk)``: a run whose step budget ran out is
+    taken as converged when the cost is flat on the scale of its standard errors
+    (:func:`_flat_walk`; ``walk`` names what still moves)."""
+    theta, cost = out.theta, out.cost
+    ok = out.converged and bool(np.isfinite(cost))
+    walk = None
+    if out.out_of_steps and np.isfinite(cost):
+        theta, cost, walk = _flat_walk(problem, theta, cost, solver=solver,
+                                       rtol=rtol, atol=atol)
+        ok = walk is not None
+    return ok, float(cost), np.asarray(theta), out, walk
+
+
+def _best_of(problem: Problem, runs, *, solver: str, starts: int) -> FitResult:
+    """The :class:`FitResult` of the best converged start (else the best start)."""
     converged_runs = [r for r in runs if r[0]]
     best = min(converged_runs or runs, key=lambda r: r[1] if np.isfinite(r[1]) else np.inf)
     agreed = sum(1 for r in converged_runs

@@ -26,7 +26,8 @@ from fitstiff.errors import InputError
 __all__ = ["main", "SUBCOMMANDS"]
 
 # order = order in --help
-SUBCOMMANDS = ("inspect", "stiffness", "simulate", "fit", "posterior", "report", "diagnose", "demo")
+SUBCOMMANDS = ("inspect", "stiffness", "simulate", "fit", "posterior", "report", "diagnose",
+               "fleet", "demo")
 
 
 class _Parser(argparse.ArgumentParser):

@@ -23,7 +23,7 @@ from fitstiff.log import RIG_KEYS, Log
 from fitstiff.output import LOG_SUFFIXES
 from fitstiff.validation import cli_number
 
-__all__ = ["add_log_arguments", "add_out_argument", "directory", "input_files", "input_paths",
+__all__ = ["add_log_arguments", "add_out_argument", "add_reading_arguments", "directory", "input_files", "input_paths",
            "logs_from_args", "model_spec", "reading_options"]
 
 
@@ -48,6 +48,12 @@ def add_log_arguments(parser: argparse.ArgumentParser) -> None:
     """``LOG...`` plus the options that say how to read them and override rig metadata."""
     parser.add_argument("logs", nargs="+", metavar="LOG",
                         help="CSV log files (rig metadata from <stem>.json beside each)")
+    add_reading_arguments(parser)
+
+
+def add_reading_arguments(parser: argparse.ArgumentParser) -> None:
+    """The options that say how to read logs and override rig metadata (without ``LOG...``:
+    ``fitstiff fleet`` finds its logs in a folder or a manifest)."""
     reading = parser.add_argument_group("reading foreign files")
     reading.add_argument("--columns", nargs="+", metavar="ENTRY", action=_ColumnEntries,
                          help="column mapping, one entry per quantity (time, displacement, "

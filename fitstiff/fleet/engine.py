@@ -1,0 +1,207 @@
+"""Running a fleet: chunks of units on Dask workers, results kept per chunk, the population.
+
+:func:`fit_fleet` discovers the units (:mod:`fitstiff.fleet.source`), skips those whose
+inputs and settings are unchanged since a finished earlier run (their rows are read back from
+the cache directory, keyed by each unit's input hash), sends the rest in chunks to the
+workers (:func:`fitstiff.fleet.work.fit_units`), writes each chunk's rows to the cache as it
+arrives (atomically: a chunk is there whole or not at all), and adds the population's flags
+(:mod:`fitstiff.fleet.population`).
+
+Where the work runs:
+
+- ``workers=None`` (default): a ``distributed.LocalCluster`` of one process per core, one
+  thread each, XLA's and the BLAS thread pools at one thread (no oversubscription), started
+  and closed here;
+- ``workers=1``: in this process, without Dask (for debugging, and for a laptop's small fleet);
+- ``scheduler="tcp://HOST:PORT"``: an existing Dask cluster, unchanged (its workers need
+  fitstiff installed; they read the logs by the paths given, so share the files).
+
+Dask retries a chunk whose worker died (``distributed.scheduler.allowed-failures``), and a
+chunk's rows come back whole: the table never loses or repeats a unit. A unit's row does not
+depend on the chunk it ran in, the number of workers or their order (:mod:`~fitstiff.fleet.work`).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+
+import pandas as pd
+
+from fitstiff.errors import InputError
+from fitstiff.fleet.population import DEFAULT_Q, population
+from fitstiff.fleet.source import Unit, discover, input_hash
+from fitstiff.fleet.work import BASE_COLUMNS, Settings, fit_units
+from fitstiff.output import write_atomic
+
+__all__ = ["fit_fleet", "WORKER_ENV", "CACHE_DIR", "default_workers"]
+
+#: the per-chunk rows of finished units, inside the output directory (kept between runs)
+CACHE_DIR = ".fleet-cache"
+#: the environment of a local worker process: one thread for XLA and the BLAS libraries
+WORKER_ENV = {"XLA_FLAGS": "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1",
+              "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+#: units per task: enough to amortise a task's overhead, few enough to spread the work
+_CHUNK = 8
+
+
+def default_workers() -> int:
+    """One worker per core this process may use."""
+    try:
+        return max(len(os.sched_getaffinity(0)), 1)
+    except AttributeError:          # not Linux
+        return max(os.cpu_count() or 1, 1)
+
+
+def _chunks(units: Sequence[Unit], size: int) -> list[list[Unit]]:
+    return [list(units[i:i + size]) for i in range(0, len(units), size)]
+
+
+def _cached(cache: Path | None) -> dict[str, dict]:
+    """Rows of finished units by input hash, from the cache's chunk files."""
+    rows: dict[str, dict] = {}
+    if cache is None or not cache.is_dir():
+        return rows
+    for part in sorted(cache.glob("chunk-*.parquet")):
+        try:
+            frame = pd.read_parquet(part)
+        except Exception:      # noqa: BLE001  - a damaged cache file is refitted, not trusted
+            continue
+        for row in frame.to_dict("records"):
+            rows[row["input_hash"]] = row
+    return rows
+
+
+def _store(cache: Path | None, rows: list[dict]) -> None:
+    if cache is None or not rows:
+        return
+    import hashlib
+
+    name = hashlib.sha256("".join(sorted(r["input_hash"] for r in rows)).encode()).hexdigest()
+    frame = pd.DataFrame(rows)
+    path = cache / f"chunk-{name[:32]}.parquet"
+    tmp = cache / f".{path.name}.{os.getpid()}.tmp"
+    frame.to_parquet(tmp, index=False)
+    write_atomic(path, tmp.read_bytes())
+    tmp.unlink()
+
+
+def _run_local(chunks, settings, done) -> None:
+    for chunk in chunks:
+        done(fit_units(chunk, settings))
+
+
+def _run_dask(chunks, settings, done, *, workers: int | None, scheduler: str | None) -> None:
+    try:
+        from distributed import Client, LocalCluster, as_completed
+    except ImportError:
+        raise InputError(None, "--workers/--scheduler", "needs Dask distributed, which is not "
+                         "installed", "pip install 'dask[distributed]', or give --workers 1")
+    cluster = None
+    if scheduler:
+        try:
+            client = Client(scheduler, timeout="20s")
+        except (OSError, TimeoutError) as exc:
+            raise InputError(None, f"--scheduler {scheduler}", f"cannot be reached ({exc})",
+                             "start it (dask scheduler) or give its address as "
+                             "tcp://HOST:PORT") from None
+    else:
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                               dashboard_address=None, silence_logs=logging.ERROR,
+                               env=dict(WORKER_ENV))
+        client = Client(cluster)
+    try:
+        keys = [f"fitstiff-fleet-{input_hash(chunk[0], settings.text())[:16]}-{len(chunk)}"
+                for chunk in chunks]
+        futures = client.map(fit_units, chunks, settings=settings, key=keys, pure=False)
+        for future in as_completed(futures):
+            done(future.result())
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+def fit_fleet(source: str | os.PathLike | Sequence[Unit], *, model: str = "chamber+dahl",
+              fix: Mapping[str, float | None] | None = None,
+              reading: Mapping[str, object] | None = None,
+              workers: int | None = None, scheduler: str | None = None,
+              lanes: int = 1, chunk: int = _CHUNK, diagnose: bool = False,
+              q: float = DEFAULT_Q, cache: str | os.PathLike | None = None,
+              progress: Callable[[int, int], None] | None = None,
+              **fit_options) -> pd.DataFrame:
+    """Fit every cylinder and run of a fleet and estimate its population.
+
+    Args:
+        source: a folder ``<cylinder>/[<run>/]*.csv``, a manifest CSV (columns
+            ``cylinder``, ``run``, ``file``), or units from :func:`~fitstiff.fleet.discover`.
+        model, fix: as for :func:`fitstiff.fit`; ``fit_options`` too (solver, max_steps,
+            denoise, sample_range, weights, skip, free).
+        reading: options of :func:`fitstiff.loading.load_logs` (columns, fmt,
+            rig_overrides, ...).
+        workers: local worker processes (default: one per core; 1: in this process).
+        scheduler: the address of an existing Dask scheduler (then ``workers`` is unused).
+        lanes: units per ``vmap``-ed solve (1 on CPUs; hundreds on a GPU).
+        chunk: units per task.
+        diagnose: also diagnose each unit (``accepted_effects``, held-out RMS columns).
+        q: the false-discovery rate of the outlier and drift flags.
+        cache: a directory for the finished units' rows: a later call with the same cache
+            refits only units whose logs, sidecars or settings changed.
+        progress: called with ``(units done, units)`` as chunks finish.
+
+    Returns:
+        One row per unit, sorted by cylinder and run (columns: see
+        :data:`~fitstiff.fleet.work.BASE_COLUMNS`, the derived quantities and parameters
+        with ``_stderr``, ``accepted_effects`` with ``diagnose``, then the flags of
+        :class:`~fitstiff.fleet.population.Population`); ``attrs["population"]`` holds
+        the population (``population.json``).
+    """
+    units = list(source) if not isinstance(source, (str, os.PathLike)) else discover(source)
+    if not units:
+        raise InputError(str(source), "fleet", "holds no units", "give at least one cylinder")
+    for flag, value in (("--lanes", lanes), ("--chunk", chunk)):
+        if value < 1:
+            raise InputError(None, f"{flag} {value}", "must be at least 1", "give 1 or more")
+    if workers is not None and workers < 1:
+        raise InputError(None, f"--workers {workers}", "must be at least 1", "give 1 or more")
+    settings = Settings(model=model, fix=dict(fix or {}), fit=dict(fit_options),
+                        reading=dict(reading or {}), lanes=lanes, diagnose=diagnose)
+    text = settings.text()
+    cache_dir = Path(cache) if cache is not None else None
+    if cache_dir is not None:
+        cache_dir.mkdir(parents=True, exist_ok=True)
+    known = _cached(cache_dir)
+    hashes = [input_hash(u, text) for u in units]
+    todo = [u for u, h in zip(units, hashes) if h not in known]
+    rows = {h: known[h] for h in hashes if h in known}
+    total, finished = len(units), len(rows)
+
+    def done(chunk_rows: list[dict]) -> None:
+        nonlocal finished
+        _store(cache_dir, chunk_rows)
+        for row in chunk_rows:
+            rows[row["input_hash"]] = row
+        finished += len(chunk_rows)
+        if progress is not None:
+            progress(finished, total)
+
+    if progress is not None:
+        progress(finished, total)
+    chunks = _chunks(todo, chunk)
+    if chunks:
+        if scheduler is None and (workers or default_workers()) == 1:
+            _run_local(chunks, settings, done)
+        else:
+            _run_dask(chunks, settings, done, workers=workers or default_workers(),
+                      scheduler=scheduler)
+    table = pd.DataFrame([rows[h] for h in hashes])
+    table = table.sort_values(["cylinder", "run_index"], kind="stable").reset_index(drop=True)
+    first = [c for c in BASE_COLUMNS if c in table]
+    table = table[first + [c for c in table.columns if c not in first]]
+    fitted = population(table, q=q)
+    table = pd.concat([table, fitted.flags.drop(columns=["cylinder", "run"])], axis=1)
+    table.attrs["population"] = fitted.to_dict()
+    return table
+
