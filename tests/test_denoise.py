@@ -170,3 +170,46 @@ def test_a_denoised_pause_keeps_the_dahl_force_where_the_toggles_ratcheted_it():
     assert float(raw[pause[0]] - raw[pause[-1]]) > 1.0
     assert abs(float(smooth[pause[0]] - smooth[pause[-1]])) < 0.05
     assert np.ptp(denoised[pause]) < 1e-6
+
+
+def _grid_scan(values):
+    """The noise floor's grid fit as a plain scan: one small ``lstsq`` per grid point (the
+    form :func:`fitstiff.noise.noise_floor` had before it solved the whole grid at once)."""
+    from fitstiff import noise
+
+    f = np.asarray(values, float)
+    lags = np.arange(1, 5)
+    d = np.array([noise._robust_var(f[2 * k:] - 2 * f[k:-k] + f[:-2 * k]) for k in lags])
+    best = (np.inf, 0.0, 0.0)
+    curvature = lags.astype(float) ** 4 / d
+    for rho in noise._GRID:
+        shape = noise._shape(rho, lags) / d
+        (x, y), *_ = np.linalg.lstsq(np.stack([shape, curvature], 1), np.ones(4), rcond=None)
+        if not (x >= 0 and y >= 0):
+            x, y = max(float(shape.sum() / (shape @ shape)), 0.0), 0.0
+        if x <= 0:
+            continue
+        cost = float(np.sum((x * shape + y * curvature - 1) ** 2))
+        if cost < best[0]:
+            best = (cost, rho, x)
+    return np.sqrt(best[2]), best[1]
+
+
+def test_noise_floor_solves_its_grid_as_a_scan_of_it_would():
+    """The vectorised grid (normal equations for every grid point at once) gives the scan's
+    level and correlation on AR(1) noise of either sign, with drift and quantisation."""
+    from fitstiff.noise import noise_floor
+
+    rng = np.random.default_rng(7)
+    for _ in range(60):
+        n, rho = int(rng.integers(40, 3000)), rng.uniform(-0.3, 0.95)
+        e = np.zeros(n)
+        w = rng.normal(size=n)
+        for i in range(1, n):
+            e[i] = rho * e[i - 1] + w[i]
+        x = (np.cumsum(rng.normal(size=n)) * rng.choice([0.0, 0.01]) + e * rng.uniform(0.01, 3)
+             + rng.choice([0.0, 1.0]) * np.round(e * 5) / 5)
+        sigma, rho_scan = _grid_scan(x)
+        found = noise_floor(x)
+        assert found.rho == pytest.approx(rho_scan, abs=1e-12)
+        assert found.sigma == pytest.approx(sigma, rel=1e-12)
