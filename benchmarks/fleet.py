@@ -133,20 +133,35 @@ def _subset(data: Path, names: list[str], where: Path) -> Path:
     return where
 
 
-def _loop_fit(data: Path, names: list[str]) -> dict:
-    from fitstiff import fit
-    from fitstiff.loading import load_logs
+_LOOP = """
+import json, sys, time
+from pathlib import Path
+from fitstiff import fit
+from fitstiff.loading import load_logs
+data, names = Path(sys.argv[1]), sys.argv[2:]
+t0 = time.perf_counter()
+first = None
+for k, name in enumerate(names):
+    fit(load_logs(sorted((data / name).rglob("*.csv"))[:2]), "chamber+dahl")
+    first = first or time.perf_counter() - t0
+print(json.dumps({"cylinders": len(names), "wall_s": time.perf_counter() - t0,
+                  "first_s": first}))
+"""
 
-    t0 = time.perf_counter()
-    first = None
-    for k, name in enumerate(names):
-        files = sorted((data / name).rglob("*.csv"))[:2]
-        fit(load_logs(files), "chamber+dahl")
-        if k == 0:
-            first = time.perf_counter() - t0
-    wall = time.perf_counter() - t0
-    return {"cylinders": len(names), "wall_s": wall, "first_s": first,
-            "units_per_s": len(names) / wall}
+
+def _loop_fit(data: Path, names: list[str], *, tree: Path | None = None) -> dict:
+    """An in-process loop of ``load_logs`` + ``fitstiff.fit`` over ``names``, in a fresh
+    process (of the fitstiff at ``tree``: an earlier version, for the before figure)."""
+    env = dict(os.environ)
+    if tree is not None:
+        env["PYTHONPATH"] = str(tree)
+    out = subprocess.run([sys.executable, "-c", _LOOP, str(data), *names], env=env,
+                         check=True, capture_output=True, text=True)
+    result = json.loads(out.stdout.strip().splitlines()[-1])
+    result["units_per_s"] = result["cylinders"] / result["wall_s"]
+    if tree is not None:
+        result["tree"] = str(tree)
+    return result
 
 
 def _loop_cli(data: Path, names: list[str], tmp: Path) -> dict:
@@ -235,6 +250,10 @@ def main(argv=None) -> int:
     parser.add_argument("--loop", type=int, default=60, help="cylinders of the fit loop")
     parser.add_argument("--processes", type=int, default=20,
                         help="cylinders of the fitstiff fit process loop")
+    parser.add_argument("--before", type=Path, metavar="TREE",
+                        help="also time the fit loop with the fitstiff of this source tree "
+                             "(an earlier version: the before figure)")
+    parser.add_argument("--before-cylinders", type=int, default=5)
     parser.add_argument("--check", type=int, default=10,
                         help="rows checked against a single fit")
     parser.add_argument("--q", type=float, default=0.01)
@@ -260,12 +279,17 @@ def main(argv=None) -> int:
         report["scaling"] = {w: _run_fleet(subset, tmp / f"out{w}", workers=w,
                                            cache=tmp / f"cache{w}") for w in (1, 2)}
         report["loop_fit"] = _loop_fit(args.data, single[:args.loop])
+        if args.before:
+            report["loop_fit_before"] = _loop_fit(args.data, single[:args.before_cylinders],
+                                                  tree=args.before)
         report["loop_cli"] = _loop_cli(args.data, single[:args.processes], tmp)
         report["agreement"] = _agreement(args.data, table, single[:args.check])
     fleet_rate = whole["units_per_s"]
     report["ratios"] = {
         "against_fit_loop": fleet_rate / report["loop_fit"]["units_per_s"],
         "against_cli_loop": fleet_rate / report["loop_cli"]["units_per_s"],
+        **({"against_fit_loop_before": fleet_rate / report["loop_fit_before"]["units_per_s"]}
+           if "loop_fit_before" in report else {}),
         "two_workers_against_one": (report["scaling"][2]["units_per_s"]
                                     / report["scaling"][1]["units_per_s"])}
     report["targets"] = {

@@ -320,3 +320,34 @@ def test_fit_fleet_refuses_bad_options(fleet):
     for kwargs in ({"workers": 0}, {"lanes": 0}, {"chunk": 0}):
         with pytest.raises(InputError):
             fit_fleet(root, **kwargs)
+
+
+def test_diagnose_adds_each_units_accepted_effects(fleet, monkeypatch):
+    """--diagnose: each unit's diagnosis (baseline = the fleet's model, the fleet's data
+    options) lands in its row. The diagnosis itself is stood in for (about a minute per
+    cylinder; its own tests are test_diagnosis.py): what is checked is what reaches it and
+    what comes back."""
+    import fitstiff.diagnosis
+    from fitstiff.diagnosis.result import Candidate
+
+    seen = []
+
+    class Found:
+        accepted = ("viscous",)
+        gap = {"heldout_rms_N": 0.9}
+        candidates = (Candidate("viscous", 30.0, 1, 1e-6, True, heldout_rms_after_N=0.4,
+                                accepted=True),
+                      Candidate("inertia", 1.0, 1, 0.3, True))
+
+    def fake(logs, *, baseline, **options):
+        seen.append((len(logs), baseline, options))
+        return Found()
+
+    monkeypatch.setattr(fitstiff.diagnosis, "diagnose", fake)
+    root, _ = fleet
+    units = [u for u in discover(root) if u.cylinder in ("cyl0004", "cyl0006")]
+    table = fit_fleet(units, workers=1, diagnose=True, skip=10, model="chamber+dahl")
+    assert seen == [(2, "chamber+dahl", {"skip": 10})] * 2
+    assert list(table["accepted_effects"]) == ["viscous", "viscous"]
+    assert list(table["heldout_rms_N"]) == [0.9, 0.9]
+    assert list(table["heldout_rms_final_N"]) == [0.4, 0.4]

@@ -93,7 +93,8 @@ def _run_local(chunks, settings, done) -> None:
         done(fit_units(chunk, settings))
 
 
-def _run_dask(chunks, settings, done, *, workers: int | None, scheduler: str | None) -> None:
+def _run_dask(chunks, settings, done, *, keys: list[str], workers: int | None,
+              scheduler: str | None) -> None:
     try:
         from distributed import Client, LocalCluster, as_completed
     except ImportError:
@@ -113,8 +114,6 @@ def _run_dask(chunks, settings, done, *, workers: int | None, scheduler: str | N
                                env=dict(WORKER_ENV))
         client = Client(cluster)
     try:
-        keys = [f"fitstiff-fleet-{input_hash(chunk[0], settings.text())[:16]}-{len(chunk)}"
-                for chunk in chunks]
         futures = client.map(fit_units, chunks, settings=settings, key=keys, pure=False)
         for future in as_completed(futures):
             done(future.result())
@@ -175,14 +174,15 @@ def fit_fleet(source: str | os.PathLike | Sequence[Unit], *, model: str = "chamb
     known = _cached(cache_dir)
     hashes = [input_hash(u, text) for u in units]
     todo = [u for u, h in zip(units, hashes) if h not in known]
-    rows = {h: known[h] for h in hashes if h in known}
+    # by unit (a file that changes while the fleet runs is the worker's to hash)
+    rows = {(u.cylinder, u.run): known[h] for u, h in zip(units, hashes) if h in known}
     total, finished = len(units), len(rows)
 
     def done(chunk_rows: list[dict]) -> None:
         nonlocal finished
         _store(cache_dir, chunk_rows)
         for row in chunk_rows:
-            rows[row["input_hash"]] = row
+            rows[(row["cylinder"], row["run"])] = row
         finished += len(chunk_rows)
         if progress is not None:
             progress(finished, total)
@@ -194,9 +194,12 @@ def fit_fleet(source: str | os.PathLike | Sequence[Unit], *, model: str = "chamb
         if scheduler is None and (workers or default_workers()) == 1:
             _run_local(chunks, settings, done)
         else:
-            _run_dask(chunks, settings, done, workers=workers or default_workers(),
+            # a task's key names its units (Dask keeps one result per key)
+            first = {u: h for u, h in zip(units, hashes)}
+            keys = [f"fitstiff-fleet-{first[c[0]][:20]}-{len(c)}" for c in chunks]
+            _run_dask(chunks, settings, done, keys=keys, workers=workers or default_workers(),
                       scheduler=scheduler)
-    table = pd.DataFrame([rows[h] for h in hashes])
+    table = pd.DataFrame([rows[(u.cylinder, u.run)] for u in units])
     table = table.sort_values(["cylinder", "run_index"], kind="stable").reset_index(drop=True)
     first = [c for c in BASE_COLUMNS if c in table]
     table = table[first + [c for c in table.columns if c not in first]]
