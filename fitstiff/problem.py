@@ -404,9 +404,10 @@ class Problem:
             for channel, weight in channels_here:
                 if channel not in channels:
                     continue
+                positive = np.asarray(weight) > 0          # one transfer, not one per row
                 for row, i in enumerate(g.index):
                     out.append(ResidualSeries(i, channel, slice(start, start + n),
-                                              np.asarray(weight[row]) > 0))
+                                              positive[row]))
                     start += n
         return out
 

@@ -320,6 +320,8 @@ def test_fit_fleet_refuses_bad_options(fleet):
     for kwargs in ({"workers": 0}, {"lanes": 0}, {"chunk": 0}):
         with pytest.raises(InputError):
             fit_fleet(root, **kwargs)
+    with pytest.raises(TypeError, match="max_step"):
+        fit_fleet(root, max_step=10)            # a typo is not silently ignored
 
 
 def test_diagnose_adds_each_units_accepted_effects(fleet, monkeypatch):

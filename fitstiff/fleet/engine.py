@@ -36,13 +36,16 @@ from fitstiff.fleet.source import Unit, discover, input_hash
 from fitstiff.fleet.work import BASE_COLUMNS, Settings, fit_units
 from fitstiff.output import write_atomic
 
-__all__ = ["fit_fleet", "WORKER_ENV", "CACHE_DIR", "default_workers"]
+__all__ = ["fit_fleet", "WORKER_ENV", "CACHE_DIR", "FIT_OPTIONS", "default_workers"]
 
 #: the per-chunk rows of finished units, inside the output directory (kept between runs)
 CACHE_DIR = ".fleet-cache"
 #: the environment of a local worker process: one thread for XLA and the BLAS libraries
 WORKER_ENV = {"XLA_FLAGS": "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1",
               "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+#: the options of :func:`fitstiff.fit` a fleet passes on to each unit's fit
+FIT_OPTIONS = ("solver", "max_steps", "starts", "seed", "denoise", "sample_range", "weights",
+               "skip", "free")
 #: units per task: enough to amortise a task's overhead, few enough to spread the work
 _CHUNK = 8
 
@@ -157,6 +160,10 @@ def fit_fleet(source: str | os.PathLike | Sequence[Unit], *, model: str = "chamb
         :class:`~fitstiff.fleet.population.Population`); ``attrs["population"]`` holds
         the population (``population.json``).
     """
+    unknown = sorted(set(fit_options) - set(FIT_OPTIONS))
+    if unknown:
+        raise TypeError(f"fit_fleet() got unexpected keyword arguments {unknown}; the fit "
+                        f"options are {', '.join(FIT_OPTIONS)}")
     units = list(source) if not isinstance(source, (str, os.PathLike)) else discover(source)
     if not units:
         raise InputError(str(source), "fleet", "holds no units", "give at least one cylinder")

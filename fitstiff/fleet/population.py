@@ -17,8 +17,9 @@ standard error (delta method, ``stderr / value``)::
   at ``tau``'s estimate, ``tau`` by the profile likelihood (chi-square, 1 dof).
 - **Outliers**: a cylinder's two-sided predictive tail probability ``p = 2 Phi(-|ybar_c - mu|
   / sqrt(tau^2 + v_c))``; Benjamini-Hochberg over every (cylinder, quantity) of the fleet at
-  ``q``. The population is refitted without the flagged cylinders until the flags settle
-  (planted outliers would otherwise widen ``tau`` and hide themselves).
+  ``q``. The first round's population is the median and a MAD-based spread, which the
+  outliers do not widen; then the population is refitted by ML without the flagged cylinders
+  until the flags settle (with them, planted outliers widen ``tau`` and hide themselves).
 - **Drift**: for a cylinder with :data:`MIN_DRIFT_RUNS` runs or more, the weighted slope of
   ``y`` against the run index (weights ``1 / (s^2 + omega^2)``), its z against its standard
   error, two-sided; Benjamini-Hochberg over every (cylinder, quantity) tested, at ``q``.
@@ -125,6 +126,16 @@ def _profile(ybar: np.ndarray, v: np.ndarray, tau2: float) -> tuple[float, float
     return mu, ll
 
 
+def _robust(ybar: np.ndarray, v: np.ndarray) -> dict[str, float]:
+    """The first round's population: the median and the MAD-based spread (less the median
+    of the cylinders' own variances), which the outliers it is to find do not widen (an ML
+    fit with 3 % of cylinders 30 % off widens a 6 % spread to 6.7 %, and hides most of
+    them)."""
+    mu = float(np.median(ybar))
+    mad = 1.4826 * float(np.median(np.abs(ybar - mu)))
+    return {"mu": mu, "tau": math.sqrt(max(mad**2 - float(np.median(v)), 0.0))}
+
+
 def _random_effects(ybar: np.ndarray, v: np.ndarray) -> dict[str, float]:
     """ML mu and tau with intervals (see the module docstring)."""
     if ybar.size == 1:
@@ -187,13 +198,14 @@ def population(table: pd.DataFrame, *, q: float = DEFAULT_Q,
                               "groups": groups}
     # outliers: refit without the flagged cylinders until the flags settle
     excluded = {name: np.zeros(len(d["names"]), bool) for name, d in per_quantity.items()}
-    for _ in range(_MAX_ROUNDS):
+    for round_ in range(_MAX_ROUNDS):
         fits, pvals, index = {}, [], []
         for name, d in per_quantity.items():
             keep = ~excluded[name]
             if keep.sum() < 2:
                 keep = np.ones_like(keep)
-            fits[name] = fit = _random_effects(d["ybar"][keep], d["v"][keep])
+            fits[name] = fit = (_robust(d["ybar"], d["v"]) if round_ == 0
+                                else _random_effects(d["ybar"][keep], d["v"][keep]))
             tau2 = 0.0 if math.isnan(fit["tau"]) else fit["tau"] ** 2
             z = (d["ybar"] - fit["mu"]) / np.sqrt(tau2 + d["v"])
             pvals.append(2 * stats.norm.sf(np.abs(z)))
