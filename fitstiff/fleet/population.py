@@ -214,8 +214,8 @@ def population(table: pd.DataFrame, *, q: float = DEFAULT_Q,
         flagged = {name: np.zeros(len(d["names"]), bool) for name, d in per_quantity.items()}
         for (name, i), qv in zip(index, qvals):
             flagged[name][i] = qv <= q
-        if all(np.array_equal(flagged[n], excluded[n]) for n in per_quantity):
-            break
+        if round_ and all(np.array_equal(flagged[n], excluded[n]) for n in per_quantity):
+            break           # (after one ML round at least: the population reported is ML's)
         excluded = flagged
     outlier_rows: dict[str, list[tuple[str, float, float]]] = {}
     for (name, i), qv in zip(index, qvals):
