@@ -45,7 +45,8 @@ from fitstiff.problem import NUISANCE_PARAMS, Problem, compiled_batch
 from fitstiff.spikes import UNTRUSTED as _UNTRUSTED
 from fitstiff.terms.base import FrictionBase, FrictionEstimate, Modifier
 
-__all__ = ["FitResult", "fit", "fit_problem", "fit_problems", "initial_guess", "SOLVERS", "LEAN_JACOBIAN_MB"]
+__all__ = ["FitResult", "fit", "fit_problem", "fit_problems", "initial_guess", "SOLVERS",
+           "LEAN_JACOBIAN_MB"]
 
 
 class NormalEquationsLM(NamedTuple):

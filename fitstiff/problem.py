@@ -708,7 +708,7 @@ def compiled_batch(problems: Sequence[Problem], fn: Callable, /, *, lanes: int |
     stacks += [stacks[-1]] * pad
     stacked = [jnp.stack(xs) for xs in zip(*stacks)]
     shared = ((("lanes", lanes), fn, tuple(sorted(options.items()))), key) \
-        if _shareable(fn) else None
+        if _shareable(fn) and key is not None else None
     jitted = _SHARED.get(shared) if shared else None
     if jitted is None:
         bound = functools.partial(fn, **options) if options else fn
