@@ -612,7 +612,8 @@ class Problem:
             # problem's modules in Python (about 80 us of a 1 ms posterior call)
             leaves, tree = jax.tree.flatten(data)
             shared = _shareable(fn) and self.structure_key(leaves, tree, structure)
-            jitted = _SHARED.get((key, shared)) if shared else None
+            with _SHARED_LOCK:
+                jitted = _SHARED.get((key, shared)) if shared else None
             if jitted is None:
                 def run(leaves, arg_data, arg_static):
                     problem = _CALLER.problem
@@ -622,11 +623,7 @@ class Problem:
 
                 jitted = jax.jit(run, static_argnums=2)
                 if shared:
-                    _SHARED[(key, shared)] = jitted
-                    while len(_SHARED) > _SHARED_MAX:
-                        _SHARED.popitem(last=False)
-            elif shared:
-                _SHARED.move_to_end((key, shared))
+                    _share((key, shared), jitted)
 
             def call(*args):
                 caller = getattr(_CALLER, "problem", None)
@@ -709,7 +706,8 @@ def compiled_batch(problems: Sequence[Problem], fn: Callable, /, *, lanes: int |
     stacked = [jnp.stack(xs) for xs in zip(*stacks)]
     shared = ((("lanes", lanes), fn, tuple(sorted(options.items()))), key) \
         if _shareable(fn) and key is not None else None
-    jitted = _SHARED.get(shared) if shared else None
+    with _SHARED_LOCK:
+        jitted = _SHARED.get(shared) if shared else None
     if jitted is None:
         bound = functools.partial(fn, **options) if options else fn
 
@@ -724,9 +722,7 @@ def compiled_batch(problems: Sequence[Problem], fn: Callable, /, *, lanes: int |
 
         jitted = jax.jit(run)
         if shared:
-            _SHARED[shared] = jitted
-            while len(_SHARED) > _SHARED_MAX:
-                _SHARED.popitem(last=False)
+            _share(shared, jitted)
 
     def call(*args):
         args = tuple(jnp.concatenate([a, jnp.repeat(a[-1:], pad, axis=0)]) if pad else a
@@ -850,6 +846,19 @@ _SHARED_MAX = 64
 #: the problem whose call is running a shared compiled function (per thread): a trace reads
 #: its static structure off it
 _CALLER = threading.local()
+
+
+_SHARED_LOCK = threading.Lock()     # the diagnosis compiles from two threads
+
+
+def _share(key: tuple, jitted: Callable) -> None:
+    """Keep ``jitted`` for ``key``, the oldest dropped beyond :data:`_SHARED_MAX` (a function
+    still held by a problem stays usable; only new problems compile it again)."""
+    with _SHARED_LOCK:
+        _SHARED[key] = jitted
+        _SHARED.move_to_end(key)
+        while len(_SHARED) > _SHARED_MAX:
+            _SHARED.popitem(last=False)
 
 
 def _shareable(fn) -> bool:

@@ -855,6 +855,10 @@ def write_report(directory: str | Path, *, out: str | Path | None = None,
         raise InputError(str(directory), "report directory", "does not exist or is not a "
                          "directory", "give the --out directory of fitstiff fit or fitstiff "
                          "posterior")
+    if (directory / "fleet.parquet").is_file():        # a fitstiff fleet directory
+        from fitstiff.fleet.page import write_fleet_report
+
+        return write_fleet_report(directory, out=out)
     with OutputDir(Path(out) if out is not None else directory,
                    inputs=_recorded_inputs(directory), planned=PLANNED,
                    options={"directory": str(directory), "draws": draws},
