@@ -16,8 +16,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         "report", help="the report page of a fit, posterior, diagnose or fleet directory",
         description="Write a self-contained report.html (images embedded, opens offline) and "
                     f"every figure as PNG and SVG in {FIGURES}/ for the --out directory of "
-                    "fitstiff fit, posterior or diagnose (which one: the "
-                    f"{' or '.join(RESULT_FILES.values())} it holds). The logs are re-read "
+                    "fitstiff fit, posterior, diagnose or fleet (which one: the "
+                    f"{' or '.join(RESULT_FILES.values())} or fleet.parquet it holds). The "
+                    "logs are re-read "
                     "from the run's manifest (their SHA-256 checked), so run it where the run "
                     "was started when the manifest has relative paths.")
     parser.add_argument("directory", metavar="DIR", type=directory,
