@@ -18,8 +18,9 @@ standard error (delta method, ``stderr / value``)::
 - **Outliers**: a cylinder's two-sided predictive tail probability ``p = 2 Phi(-|ybar_c - mu|
   / sqrt(tau^2 + v_c))``; Benjamini-Hochberg over every (cylinder, quantity) of the fleet at
   ``q``. The first round's population is the median and a MAD-based spread, which the
-  outliers do not widen (with :data:`_ROBUST_MIN` cylinders or more; below, each cylinder
-  against the ML population of the others; below :data:`_MIN_TESTED`, none is tested); then the population is refitted by ML without the flagged cylinders
+  outliers do not widen (with :data:`_ROBUST_MIN` cylinders or more; below, in every round
+  each cylinder against the ML population of the others, Student t; below
+  :data:`_MIN_TESTED`, none is tested); then the population is refitted by ML without the flagged cylinders
   until the flags settle (with them, planted outliers widen ``tau`` and hide themselves).
 - **Drift**: for a cylinder with :data:`MIN_DRIFT_RUNS` runs or more, the weighted slope of
   ``y`` against the run index (weights ``1 / (s^2 + omega^2)``), its z against its standard
@@ -135,18 +136,21 @@ def _profile(ybar: np.ndarray, v: np.ndarray, tau2: float) -> tuple[float, float
     return mu, ll
 
 
-def _leave_one_out(ybar: np.ndarray, v: np.ndarray) -> np.ndarray:
+def _leave_one_out(ybar: np.ndarray, v: np.ndarray, excluded: np.ndarray) -> np.ndarray:
     """Each cylinder's predictive tail probability under the population fitted to the others
-    (its mean's uncertainty included): the first round in a small fleet, where one outlier
-    widens a population fitted with it enough to hide itself. Fewer than
-    :data:`_MIN_TESTED` cylinders: no test (1)."""
+    that are not ``excluded`` (flagged; its mean's uncertainty included): a small fleet's
+    test, where one outlier widens a population fitted with it enough to hide itself. Fewer
+    than :data:`_MIN_TESTED` cylinders: no test (1)."""
     n = ybar.size
     if n < _MIN_TESTED:
         return np.ones(n)
     out = np.empty(n)
-    m = n - 1
     for i in range(n):
-        others = np.arange(n) != i
+        others = (np.arange(n) != i) & ~excluded
+        m = int(others.sum())
+        if m < _MIN_TESTED - 1:
+            out[i] = 1.0
+            continue
         fit = _random_effects(ybar[others], v[others])
         # a spread from m cylinders: ML's m-divisor undone, and Student's t with m - 1
         # degrees of freedom for its uncertainty (with the normal, a clean fleet of six
@@ -236,9 +240,9 @@ def population(table: pd.DataFrame, *, q: float = DEFAULT_Q,
             if keep.sum() < 2:
                 keep = np.ones_like(keep)
             n = len(d["names"])
-            if round_ == 0 and n < _ROBUST_MIN:
-                fits[name] = _random_effects(d["ybar"], d["v"])
-                pvals.append(_leave_one_out(d["ybar"], d["v"]))
+            if n < _ROBUST_MIN:        # every round: each against the others not flagged
+                fits[name] = _random_effects(d["ybar"][keep], d["v"][keep])
+                pvals.append(_leave_one_out(d["ybar"], d["v"], excluded[name]))
             else:
                 fits[name] = fit = (_robust(d["ybar"], d["v"]) if round_ == 0
                                     else _random_effects(d["ybar"][keep], d["v"][keep]))
