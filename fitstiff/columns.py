@@ -43,7 +43,7 @@ command line overrides both.
 
 Bundled formats
 ---------------
-``zillen_oring``: the O-ring friction logs in ``shared/realdata/pneumatic-seal-friction``
+``zillen_oring``: the O-ring friction logs in ``data/real/oring``
 (tab-separated, no header; time ms, 3 raw-volt columns, position mm, chamber gauge pressure
 bar, rod force N; 25 mm bore). The logged chamber is the one acting on the full bore (the
 upstream analysis subtracts ``p * pi * 0.0125**2``), i.e. the cap side: our chamber A; the
@@ -54,7 +54,7 @@ it does (about 98 % of sliding samples in every file) only when the position cha
 flipped too: the laser position grows as chamber A shrinks. The reasoning and numbers are in
 the file's ``_comment``. Read them with::
 
-    fitstiff inspect shared/realdata/pneumatic-seal-friction/*.csv --format zillen_oring
+    fitstiff inspect data/real/oring/*.csv --format zillen_oring
 """
 
 from __future__ import annotations

@@ -113,11 +113,11 @@ needs logs that separate it (a known zero force, or a fixed offset with `--fix o
 
 ## The real O-ring logs
 
-The four O-ring logs of `../shared/realdata/pneumatic-seal-friction` (1, 3, 5, 7 bar, read
+The four O-ring logs of `data/real/oring` (1, 3, 5, 7 bar, read
 with `--format zillen_oring`, 34 000 samples) take about 80 s to diagnose against the whole
 library on 2 cores, so this notebook reads the stored result of
 
-    fitstiff diagnose ../shared/realdata/pneumatic-seal-friction/*.csv --format zillen_oring \
+    fitstiff diagnose data/real/oring/*.csv --format zillen_oring \
         --baseline chamber+dahl --out out/oring_diagnosis
 
 kept in `benchmarks/results/diagnosis_oring.json` (the plain comparison on main gave a held-out

@@ -15,8 +15,8 @@ import pytest
 REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:   # small versions of the benchmarks run in the suite
     sys.path.insert(0, str(REPO))
-SHARED = REPO.parent / "shared"
-REALDATA = SHARED / "realdata" / "pneumatic-seal-friction"
+#: the real O-ring logs (CC0; data/real/oring/SOURCE.md)
+REALDATA = REPO / "data" / "real" / "oring"
 
 #: past this many memory maps a worker drops JAX's in-memory compilation caches (the kernel
 #: refuses new maps at vm.max_map_count, 65 530 by default)

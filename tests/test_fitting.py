@@ -165,7 +165,6 @@ def test_cli_bad_options_exit_2_with_one_line(tmp_path, capsys, argv, fragment):
     assert fragment in err and len(err.strip().splitlines()) == 1
 
 
-@pytest.mark.skipif(not REALDATA.is_dir(), reason="../shared/realdata is not beside the repo")
 def test_real_oring_files_fit_jointly(tmp_path, capsys):
     files = sorted(str(p) for p in REALDATA.glob("O-ring_*bar.csv"))
     code = main(["fit", *files, "--format", "zillen_oring", "--model", "chamber+dahl",

@@ -1,4 +1,4 @@
-"""The real O-ring friction logs (shared/realdata, see SOURCE.md) with the bundled format."""
+"""The real O-ring friction logs (data/real/oring, see SOURCE.md) with the bundled format."""
 
 from __future__ import annotations
 
@@ -11,16 +11,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from conftest import REALDATA
+
 from fitstiff.loading import load_log
 
-REALDATA = Path(__file__).resolve().parents[1].parent / "shared" / "realdata" / \
-    "pneumatic-seal-friction"
 SAMPLES = {1: 7139, 3: 7834, 5: 10321, 7: 8720}   # rows in O-ring_<bar>bar.csv
 SLIDING_SPEED = 2e-3                               # m/s: well above reversal transients
-
-pytestmark = pytest.mark.skipif(not REALDATA.is_dir(),
-                                reason=f"real data not found at {REALDATA} (shared/ absent)")
-
 
 def path_of(bar: int) -> Path:
     return REALDATA / f"O-ring_{bar}bar.csv"

@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import REALDATA
 
 from fitstiff.errors import InputError
 from fitstiff.log import Log, Rig
@@ -30,8 +31,6 @@ from fitstiff.segmentation import REGIONS, SPEED_BANDS, estimate_noise, segment
 FS = 1000.0          # Hz
 SIGMA = 5e-6         # m: 5 % of the smallest amplitude, 0.1 mm
 SEEDS = range(5)
-REALDATA = Path(__file__).resolve().parents[1].parent / "shared" / "realdata" / \
-    "pneumatic-seal-friction"
 
 
 @dataclasses.dataclass
@@ -420,7 +419,6 @@ def test_million_samples_segment():
 
 # ------------------------------------------------------------------------------- real data
 
-@pytest.mark.skipif(not REALDATA.is_dir(), reason=f"real data not present at {REALDATA}")
 @pytest.mark.parametrize("pressure", [1, 3, 5, 7])
 def test_real_oring_logs_have_19_reversals(pressure):
     """Each file is 10 out-and-back runs starting at the bottom of the stroke and ending
