@@ -30,9 +30,9 @@ import time
 import numpy as np
 
 from fitstiff._testing.calibration import DRAW_PRIORS, QUANTITIES, dataset
-from fitstiff.fitting import fit
-from fitstiff.posterior import sample_posterior
-from fitstiff.run import Z90
+from fitstiff.inference.fitting import fit
+from fitstiff.inference.posterior import sample_posterior
+from fitstiff.present.reopen import Z90
 
 
 def score(seed: int, *, noise_models=("ar1", "gaussian"), walkers: int = 16, steps: int = 3000,

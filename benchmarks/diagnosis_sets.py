@@ -21,8 +21,8 @@ import time
 from pathlib import Path
 
 from fitstiff.diagnosis import diagnose
-from fitstiff.loading import load_logs
-from fitstiff.output import to_jsonable, write_atomic
+from fitstiff.io.loading import load_logs
+from fitstiff.io.output import to_jsonable, write_atomic
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "synthetic"
 

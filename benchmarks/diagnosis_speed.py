@@ -35,9 +35,9 @@ _COMPILE_EVENTS = ("/jax/core/compile/jaxpr_trace_duration",
 
 
 def make_logs(samples=SIZES["small"]):
-    from fitstiff.log import Rig
-    from fitstiff.programs import TriangleCycles
-    from fitstiff.simulate import Noise, simulate
+    from fitstiff.io.log import Rig
+    from fitstiff.physics.programs import TriangleCycles
+    from fitstiff.physics.simulate import Noise, simulate
 
     out = []
     for k, ((bar, rate), size) in enumerate(zip(LOGS, samples)):

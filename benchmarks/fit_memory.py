@@ -25,9 +25,9 @@ RATE_HZ = 10000.0
 
 
 def write_log(folder: Path, seconds: float) -> Path:
-    from fitstiff.log import Rig
-    from fitstiff.programs import TriangleCycles
-    from fitstiff.simulate import Noise, simulate, write_log as write
+    from fitstiff.io.log import Rig
+    from fitstiff.physics.programs import TriangleCycles
+    from fitstiff.physics.simulate import Noise, simulate, write_log as write
 
     amplitudes = (0.05, 0.1, 0.2, 0.5, 1.0)
     cycles = max(1, int(round(seconds / (4 * sum(amplitudes)))))
@@ -65,9 +65,9 @@ def reset():
 
 stages = {}
 t0 = time.perf_counter()
-import fitstiff.fitting as fitting
-from fitstiff.loading import load_logs
-from fitstiff.problem import Problem
+import fitstiff.inference.fitting as fitting
+from fitstiff.io.loading import load_logs
+from fitstiff.inference.problem import Problem
 stages["import"] = hwm_mb(); reset()
 logs = load_logs([sys.argv[1]])
 stages["load"] = hwm_mb(); reset()

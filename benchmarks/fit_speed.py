@@ -37,9 +37,9 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from fitstiff._testing.speed import make_log, reference_residuals
-from fitstiff.fitting import fit_problem, initial_guess
-from fitstiff.problem import Problem
-from fitstiff.simulate import write_log
+from fitstiff.inference.fitting import fit_problem, initial_guess
+from fitstiff.inference.problem import Problem
+from fitstiff.physics.simulate import write_log
 
 
 def time_reference(problem, start):

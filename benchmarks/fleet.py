@@ -137,7 +137,7 @@ _LOOP = """
 import json, sys, time
 from pathlib import Path
 from fitstiff import fit
-from fitstiff.loading import load_logs
+from fitstiff.io.loading import load_logs
 data, names = Path(sys.argv[1]), sys.argv[2:]
 t0 = time.perf_counter()
 first = None
@@ -224,7 +224,7 @@ def _flags(table: pd.DataFrame, truth: dict, q: float) -> dict:
 
 def _agreement(data: Path, table: pd.DataFrame, names: list[str]) -> dict:
     from fitstiff import fit
-    from fitstiff.loading import load_logs
+    from fitstiff.io.loading import load_logs
 
     worst = 0.0
     columns = ["presliding_slope_N_per_mm", "breakaway_N", "presliding_range_mm",

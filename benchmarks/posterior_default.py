@@ -36,9 +36,9 @@ CHECK_EVERY = 500               # fitstiff posterior's default
 
 
 def write_logs(folder: Path, *, scale: float = 1.0) -> list[Path]:
-    from fitstiff.log import Rig
-    from fitstiff.programs import TriangleCycles
-    from fitstiff.simulate import Noise, simulate, write_log
+    from fitstiff.io.log import Rig
+    from fitstiff.physics.programs import TriangleCycles
+    from fitstiff.physics.simulate import Noise, simulate, write_log
 
     travel_mm = 4 * sum(AMPLITUDES_MM)                  # one cycle of every amplitude
     paths = []

@@ -3,12 +3,12 @@
 The 4 000-sample ``chamber+dahl`` log of :mod:`fitstiff._testing.speed` (paper cylinder, 6 bar,
 realistic noise), fitted by least squares, then:
 
-- **fitstiff**: :class:`fitstiff.posterior.LogPosterior` (default AR(1) noise model, default
-  priors, transforms' log-Jacobians) evaluated on 32 walkers at once: one compiled, ``vmap``-ed
-  call, the two pressure series in closed form (:mod:`fitstiff.closed_series`: quadratic
-  forms in the coefficients of their polynomials in ``n``), the force series from residuals.
-  Each round times two blocks of ``--calls`` consecutive calls (per call: their mean) after
-  the reference's block: the first block (``speedup_cold``) starts right after the
+- **fitstiff**: :class:`fitstiff.inference.posterior.LogPosterior` (default AR(1) noise model,
+  default priors, transforms' log-Jacobians) evaluated on 32 walkers at once: one compiled,
+  ``vmap``-ed call, the two pressure series in closed form (:mod:`fitstiff.inference.closed_series`:
+  quadratic forms in the coefficients of their polynomials in ``n``), the force series from
+  residuals. Each round times two blocks of ``--calls`` consecutive calls (per call: their mean)
+  after the reference's block: the first block (``speedup_cold``) starts right after the
   reference's ~50 ms of single-threaded Python, the second (``speedup``) follows it, warm, as a
   sampler's calls follow each other. Timed one by one, the first calls after the reference
   took 1.8 ms falling to 1.2 ms by the 20th, against 0.9 ms warm (the second core idles during
@@ -16,9 +16,10 @@ realistic noise), fitted by least squares, then:
   took 1.8 ms and those from the third 1.25-1.3 ms), and inside ``sample_posterior`` the 16-walker calls took 0.58 ms
   (median of 6 000), the warm rate: the cold block measures the benchmark's alternation, not
   the sampler.
-- **sampler**: emcee's ensemble sampler with fitstiff's moves (:data:`~fitstiff.posterior.MOVES`)
-  and :class:`~fitstiff.posterior.LogPosterior` on half the ensemble per call, as
-  :func:`~fitstiff.posterior.sample_posterior` runs it, ``--sampler-steps`` steps timed:
+- **sampler**: emcee's ensemble sampler with fitstiff's moves
+  (:data:`~fitstiff.inference.posterior.MOVES`) and
+  :class:`~fitstiff.inference.posterior.LogPosterior` on half the ensemble per call, as
+  :func:`~fitstiff.inference.posterior.sample_posterior` runs it, ``--sampler-steps`` steps timed:
   log-posterior evaluations per second of a running chain (the proposals and emcee's own
   work included), against the same reference rate (``sampler_speedup``).
 - **reference**: the same log-posterior as a user would write it with NumPy: the per-sample
@@ -27,8 +28,8 @@ realistic noise), fitted by least squares, then:
   integrated out, priors and Jacobians. Both give the same values up to one constant over the
   walkers (checked: the run stops if the difference varies by more than 1e-3). The two are
   timed in interleaved rounds and the speedup is the median of the rounds' ratios.
-- **full run**: :func:`fitstiff.posterior.sample_posterior` from the fit, 32 walkers x 5 000
-  steps with an HDF5 chain (compilation, sampling, derived quantities and draws included).
+- **full run**: :func:`fitstiff.inference.posterior.sample_posterior` from the fit, 32 walkers x 5
+  000 steps with an HDF5 chain (compilation, sampling, derived quantities and draws included).
 
     python benchmarks/posterior_speed.py [--json out.json]
 """
@@ -45,9 +46,9 @@ import emcee
 import numpy as np
 
 from fitstiff._testing.speed import make_log, reference_log_posterior
-from fitstiff.fitting import fit_problem
-from fitstiff.posterior import DEFAULT_MOVES, MOVES, log_posterior, sample_posterior
-from fitstiff.problem import Problem
+from fitstiff.inference.fitting import fit_problem
+from fitstiff.inference.posterior import DEFAULT_MOVES, MOVES, log_posterior, sample_posterior
+from fitstiff.inference.problem import Problem
 
 WALKERS = 32
 REFERENCE_WALKERS = 8       # reference evaluations per round (scaled to WALKERS)

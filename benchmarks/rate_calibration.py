@@ -30,10 +30,10 @@ from pathlib import Path
 
 import numpy as np
 
-from fitstiff.fitting import fit
-from fitstiff.log import Rig
-from fitstiff.programs import TriangleCycles
-from fitstiff.simulate import Noise, simulate
+from fitstiff.inference.fitting import fit
+from fitstiff.io.log import Rig
+from fitstiff.physics.programs import TriangleCycles
+from fitstiff.physics.simulate import Noise, simulate
 
 RESULTS = Path(__file__).parent / "results" / "rate_calibration.json"
 RATES_HZ = (200.0, 1000.0, 10000.0)

@@ -17,7 +17,7 @@ import json
 import time
 
 from fitstiff._testing.recovery import dataset
-from fitstiff.fitting import fit
+from fitstiff.inference.fitting import fit
 
 def score(friction: str, seed: int) -> dict[str, object]:
     logs, derived, n_true = dataset(friction, seed)

@@ -1,7 +1,7 @@
 """A second fit in one process: other data of the same structure (issue 34).
 
 Before 406e437 every ``Problem`` compiled its solve and covariance summary anew; since then
-problems of one structure share them (:meth:`fitstiff.problem.Problem.compiled`). Two
+problems of one structure share them (:meth:`fitstiff.inference.problem.Problem.compiled`). Two
 cylinders of :func:`fitstiff._testing.fleet.make_fleet` (two 3 700-sample logs each) are
 fitted one after the other; the second fit's time is what a loop over a fleet pays per
 cylinder. Run it with another tree on ``PYTHONPATH`` for the before figure (the data are
@@ -13,7 +13,7 @@ import sys, time
 from pathlib import Path
 import fitstiff
 
-from fitstiff.loading import load_logs
+from fitstiff.io.loading import load_logs
 root = Path(sys.argv[1])
 if not root.exists():
     from fitstiff._testing.fleet import make_fleet

@@ -14,8 +14,8 @@ import time
 
 import numpy as np
 
-from fitstiff.log import Log
-from fitstiff.segmentation import segment
+from fitstiff.io.log import Log
+from fitstiff.segments.segmentation import segment
 
 
 def main(argv=None) -> None:

@@ -277,7 +277,7 @@ def _line(r: Mapping[str, object]) -> str:
 
 
 def _save(path: Path, records: Mapping[str, Mapping[str, object]], figure: bool) -> None:
-    from fitstiff.output import to_jsonable, write_atomic
+    from fitstiff.io.output import to_jsonable, write_atomic
 
     summary = score(records)
     write_atomic(path, json.dumps(to_jsonable({"summary": summary, "datasets": records}),

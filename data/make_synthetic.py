@@ -6,8 +6,8 @@ Usage (with the project's Python)::
     python data/make_synthetic.py --only effects/leakage --out /tmp/check   # one set elsewhere
     python data/make_synthetic.py --list                        # the set names
 
-Every log is :func:`fitstiff.simulate.simulate` of a model with known parameters on a
-displacement program, plus sensor noise, written by :func:`fitstiff.simulate.write_log` as
+Every log is :func:`fitstiff.physics.simulate.simulate` of a model with known parameters on a
+displacement program, plus sensor noise, written by :func:`fitstiff.physics.simulate.write_log` as
 ``<log>.csv`` + sidecar ``<log>.json`` + ground truth ``<log>.truth.json``. The noise seed of a
 log is the CRC-32 of ``"<set>/<log>"``, so a log's noise does not depend on which other logs
 are generated. A full run also writes ``README.md`` (the sets and their truth) and
@@ -25,12 +25,12 @@ import zlib
 from collections.abc import Mapping
 from pathlib import Path
 
-from fitstiff.log import Rig
-from fitstiff.model import Model, build_model
-from fitstiff.output import write_atomic
-from fitstiff.programs import (Concat, NestedLoops, Pause, Program, Ramp, SineSweep,
-                               TriangleCycles)
-from fitstiff.simulate import Noise, SimulatedLog, simulate, write_log
+from fitstiff.io.log import Rig
+from fitstiff.io.output import write_atomic
+from fitstiff.physics.model import Model, build_model
+from fitstiff.physics.programs import (Concat, NestedLoops, Pause, Program, Ramp, SineSweep,
+                                       TriangleCycles)
+from fitstiff.physics.simulate import Noise, SimulatedLog, simulate, write_log
 
 HERE = Path(__file__).resolve().parent
 DEFAULT_OUT = HERE / "synthetic"

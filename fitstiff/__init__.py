@@ -20,15 +20,15 @@ from fitstiff.errors import FitstiffError, InputError  # noqa: E402
 #: public name -> the module that defines it (``import fitstiff`` imports no NumPy either:
 #: the command line's first instant, in which a Ctrl-C must end it cleanly, stays short)
 _LAZY = {
-    "Log": "fitstiff.log", "Rig": "fitstiff.log",
-    "load_log": "fitstiff.loading", "load_logs": "fitstiff.loading",
-    "segment": "fitstiff.segmentation", "Segmentation": "fitstiff.segmentation",
-    "build_model": "fitstiff.model", "Model": "fitstiff.model",
-    "fit": "fitstiff.fitting", "FitResult": "fitstiff.fitting",
-    "sample_posterior": "fitstiff.posterior", "Posterior": "fitstiff.posterior",
-    "simulate": "fitstiff.simulate", "Noise": "fitstiff.simulate",
+    "Log": "fitstiff.io.log", "Rig": "fitstiff.io.log",
+    "load_log": "fitstiff.io.loading", "load_logs": "fitstiff.io.loading",
+    "segment": "fitstiff.segments.segmentation", "Segmentation": "fitstiff.segments.segmentation",
+    "build_model": "fitstiff.physics.model", "Model": "fitstiff.physics.model",
+    "fit": "fitstiff.inference.fitting", "FitResult": "fitstiff.inference.fitting",
+    "sample_posterior": "fitstiff.inference.posterior", "Posterior": "fitstiff.inference.posterior",
+    "simulate": "fitstiff.physics.simulate", "Noise": "fitstiff.physics.simulate",
     "diagnose": "fitstiff.diagnosis", "Diagnosis": "fitstiff.diagnosis",
-    "write_report": "fitstiff.report",
+    "write_report": "fitstiff.present.report",
     "fit_fleet": "fitstiff.fleet",
 }
 

@@ -2,7 +2,7 @@
 
 The command line (:func:`fitstiff.cli.main`) runs every command inside :class:`Signals`: either
 signal raises :class:`Interrupted` where the program is, the claimed output directories
-discard what they staged (:class:`~fitstiff.output.OutputDir`), and the command ends with one
+discard what they staged (:class:`~fitstiff.io.output.OutputDir`), and the command ends with one
 line and the shell's code for the signal (130 for SIGINT, 143 for SIGTERM).
 
 Python drops an exception raised while a garbage-collection callback runs (JAX registers

@@ -26,7 +26,7 @@ from fitstiff.errors import InputError
 __all__ = ["BAR", "MM", "Kind", "KINDS", "UnitSpec", "parse_unit"]
 
 MM = 1e-3
-"""Metres per millimetre (the scale of fitstiff.log.RIG_KEYS: SI = mm * MM, mm = SI / MM)."""
+"""Metres per millimetre (the scale of fitstiff.io.log.RIG_KEYS: SI = mm * MM, mm = SI / MM)."""
 
 BAR = 1e5
 """Pascal per bar."""

@@ -22,7 +22,7 @@ CELLS: list[tuple[str, str]] = [
 The paper studies a 32 mm rodless pneumatic cylinder (Festo OSP-P 32, 700 mm stroke) holding
 position with closed valves. The two closed chambers act as a polytropic gas spring
 (DESIGN §1.1). This notebook recomputes the paper's chamber equations and its §4 discussion
-with `fitstiff.stiffness` (the library behind `fitstiff stiffness`) and puts our numbers next
+with `fitstiff.physics.stiffness` (the library behind `fitstiff stiffness`) and puts our numbers next
 to the paper's statements, disagreements included.
 
 All laws use **absolute** pressure: 6 bar gauge is 7.01325 bar absolute. Figures are written
@@ -34,8 +34,8 @@ import numpy as np
 import pandas as pd
 from scipy.optimize import brentq
 
-from fitstiff.log import Rig
-from fitstiff.stiffness import BAR, MM, POLYTROPIC_RANGE, chamber_stiffness, stiffness_table
+from fitstiff.io.log import Rig
+from fitstiff.physics.stiffness import BAR, MM, POLYTROPIC_RANGE, chamber_stiffness, stiffness_table
 
 BORE, STROKE, GAUGE, N = 32 * MM, 700 * MM, 6 * BAR, 1.4  # OSP-P 32, 6 bar gauge, adiabatic
 DEAD = 20 * MM                 # assumed dead length per side, see Fig. 3 below
@@ -86,7 +86,7 @@ bore and 700 mm stroke, the restoring force over 0.5 mm:
     ("code", r"""
 r05 = chamber_stiffness(paper, position=mid, displacement=U, n=N)
 eq15 = p_abs * N * paper.area_a * STROKE / (mid * (STROKE - mid))
-print(f"eq. 15: k = {eq15 * MM:.3f} N/mm (fitstiff.stiffness: {r05.stiffness * MM:.3f} N/mm)")
+print(f"eq. 15: k = {eq15 * MM:.3f} N/mm (fitstiff.physics.stiffness: {r05.stiffness * MM:.3f} N/mm)")
 print(f"restoring force over {U / MM:g} mm: linearised {r05.force_linear:.3f} N, "
       f"exact {r05.force_exact:.3f} N (relative gap {r05.relative_gap:.1e})")
 print(f"with the gauge pressure in the law (wrong): {eq15 * GAUGE / p_abs * U:.3f} N")
@@ -285,7 +285,7 @@ cap the gap is first order in $u$.
 
 The paper's Fig. 4 plots force over displacement for triangle cycles of growing amplitude:
 nested hysteresis loops whose tips show the steep pre-sliding curve after every reversal. We
-simulate that experiment with `fitstiff.simulate` on the paper's cylinder (32 mm bore,
+simulate that experiment with `fitstiff.physics.simulate` on the paper's cylinder (32 mm bore,
 rodless, 700 mm stroke, closed at mid-stroke at 6 bar gauge) with the model `chamber+dahl`:
 the gas spring with $n = 1.4$ and a Dahl seal of $\sigma_0 = 40$ N/mm and $F_c = 18$ N
 (DESIGN §1.2). Triangle cycles of 0.05, 0.1, 0.2, 0.5 and 1 mm at 1 mm/s, logged at 200 Hz
@@ -293,10 +293,10 @@ with the noise of the synthetic data sets (0.2 N, 1 µm, 2 mbar).
 `data/synthetic/fig4/p6bar_x350mm.csv` is the same experiment with another noise seed.
 """),
     ("code", r"""
-from fitstiff import plotting
-from fitstiff.fitting import fit
-from fitstiff.programs import TriangleCycles
-from fitstiff.simulate import Noise, simulate
+from fitstiff.present import plotting
+from fitstiff.inference.fitting import fit
+from fitstiff.physics.programs import TriangleCycles
+from fitstiff.physics.simulate import Noise, simulate
 
 AMPLITUDES_MM = (0.05, 0.1, 0.2, 0.5, 1.0)
 TRUTH = {"n": N, "sigma0": 40.0, "Fc": 18.0}               # display units: -, N/mm, N
@@ -371,7 +371,7 @@ seal with $\sigma_0 = 40$ N/mm (DESIGN §1.2) gives about 20 % more force over t
 
 ### Fitting it back
 
-`fitstiff.fitting.fit` with the same model, from its data-driven start, on the noisy log
+`fitstiff.inference.fitting.fit` with the same model, from its data-driven start, on the noisy log
 (force and both chamber pressures):
 """),
     ("code", r"""

@@ -36,12 +36,12 @@ import matplotlib.pyplot as plt
 
 from fitstiff.diagnosis import diagnose
 from fitstiff.diagnosis.gap import region_summary
-from fitstiff.noise import NoiseFloor
-from fitstiff.log import Rig
-from fitstiff.plotting import plot_gap_heatmap, plot_residual_signature
-from fitstiff.programs import TriangleCycles
-from fitstiff.segmentation import segment
-from fitstiff.simulate import Noise, simulate
+from fitstiff.signal.noise import NoiseFloor
+from fitstiff.io.log import Rig
+from fitstiff.present.plotting import plot_gap_heatmap, plot_residual_signature
+from fitstiff.physics.programs import TriangleCycles
+from fitstiff.segments.segmentation import segment
+from fitstiff.physics.simulate import Noise, simulate
 import numpy as np
 
 rig = Rig(bore=0.032, rod=0.0, stroke=0.7, start_position=0.35, supply_pressure=6e5)

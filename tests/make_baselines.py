@@ -4,9 +4,9 @@ After an intended change to one of these figures, rewrite the baselines and look
 
     python tests/make_baselines.py
 
-Every baseline is a figure of :mod:`fitstiff.plotting` drawn from :func:`example_fit` (a
-fixed-seed synthetic log fitted with ``fitstiff.fitting.fit``) by :func:`render`, which fixes
-what makes a PNG differ from run to run: matplotlib's default style (no user rc file), the
+Every baseline is a figure of :mod:`fitstiff.present.plotting` drawn from :func:`example_fit` (a
+fixed-seed synthetic log fitted with ``fitstiff.inference.fitting.fit``) by :func:`render`, which
+fixes what makes a PNG differ from run to run: matplotlib's default style (no user rc file), the
 DejaVu Sans font that ships with matplotlib, the figure size and resolution, and no software
 tag in the file. The tests draw the same figures the same way and compare them with
 :func:`matplotlib.testing.compare.compare_images`.
@@ -23,12 +23,12 @@ import matplotlib.style
 import numpy as np
 from matplotlib.figure import Figure
 
-from fitstiff import plotting
-from fitstiff.fitting import FitResult, fit
-from fitstiff.log import Log, Rig
-from fitstiff.programs import TriangleCycles
-from fitstiff.segmentation import Segmentation
-from fitstiff.simulate import simulate
+from fitstiff.inference.fitting import FitResult, fit
+from fitstiff.io.log import Log, Rig
+from fitstiff.physics.programs import TriangleCycles
+from fitstiff.physics.simulate import simulate
+from fitstiff.present import plotting
+from fitstiff.segments.segmentation import Segmentation
 
 BASELINE_DIR = Path(__file__).resolve().with_name("baseline_images")
 DPI = 80

@@ -1,4 +1,4 @@
-"""Smoothed acceleration for the inertia term (fitstiff.denoise.smooth_acceleration)."""
+"""Smoothed acceleration for the inertia term (fitstiff.segments.denoise.smooth_acceleration)."""
 
 import glob
 from pathlib import Path
@@ -6,7 +6,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fitstiff.denoise import _curvature_noise, _quadratic_curvature, smooth_acceleration
+from fitstiff.segments.denoise import _curvature_noise, _quadratic_curvature, smooth_acceleration
 
 INERTIA = Path(__file__).resolve().parents[1] / "data" / "synthetic" / "effects" / "inertia"
 
@@ -43,8 +43,8 @@ def test_the_noise_formula_matches_a_simulation():
 
 def test_a_fit_with_inertia_recovers_the_mass_of_the_bundled_set():
     """Before: the difference of the smoothed velocity diluted the mass to 1.9 kg (truth 5)."""
-    from fitstiff.fitting import fit
-    from fitstiff.loading import load_logs
+    from fitstiff.inference.fitting import fit
+    from fitstiff.io.loading import load_logs
 
     logs = load_logs(sorted(glob.glob(str(INERTIA / "*.csv"))))
     result = fit(logs, "chamber+dahl+inertia")

@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 
 from fitstiff._testing.speed import make_log
-from fitstiff.closed_series import MAX_TERMS, ClosedFormLikelihood, taylor_terms
-from fitstiff.fitting import fit_problem
-from fitstiff.likelihood import AR1, Gaussian, Layout, StudentT, TurningPoints
-from fitstiff.posterior import LogPosterior, _integrated, _prepared, _Coordinates
-from fitstiff.priors import Priors
-from fitstiff.problem import Problem, ResidualSeries
+from fitstiff.inference.closed_series import MAX_TERMS, ClosedFormLikelihood, taylor_terms
+from fitstiff.inference.fitting import fit_problem
+from fitstiff.inference.likelihood import AR1, Gaussian, Layout, StudentT, TurningPoints
+from fitstiff.inference.posterior import LogPosterior, _integrated, _prepared, _Coordinates
+from fitstiff.inference.priors import Priors
+from fitstiff.inference.problem import Problem, ResidualSeries
 
 
 @pytest.fixture(scope="module")

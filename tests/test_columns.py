@@ -6,9 +6,9 @@ import json
 
 import pytest
 
-from fitstiff.columns import (Format, bundled_formats, load_format, match_header,
-                              parse_column_spec, parse_columns, parse_delimiter, parse_vented)
 from fitstiff.errors import InputError
+from fitstiff.io.columns import (Format, bundled_formats, load_format, match_header,
+                                 parse_column_spec, parse_columns, parse_delimiter, parse_vented)
 
 
 @pytest.mark.parametrize("entry, quantity, column, unit, factor, absolute", [

@@ -14,10 +14,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fitstiff.denoise import denoise_displacement, turning_points
-from fitstiff.log import Log
-from fitstiff.programs import TriangleCycles
-from fitstiff.segmentation import segment
+from fitstiff.io.log import Log
+from fitstiff.physics.programs import TriangleCycles
+from fitstiff.segments.denoise import denoise_displacement, turning_points
+from fitstiff.segments.segmentation import segment
 
 NOISE = 1e-6
 
@@ -65,9 +65,9 @@ def test_turning_point_errors_allow_for_correlated_displacement_noise():
     """AR(1) displacement noise (lag-1 correlation 0.7, 1 um marginal) at 5 um per sample, as
     in the posterior-calibration datasets: read as white noise (rho = 0) the reported errors
     are far below the scatter; with the correlation estimated from the data
-    (fitstiff.noise.noise_floor) they describe it."""
-    from fitstiff.noise import noise_floor
-    from fitstiff.segmentation import estimate_noise
+    (fitstiff.signal.noise.noise_floor) they describe it."""
+    from fitstiff.segments.segmentation import estimate_noise
+    from fitstiff.signal.noise import noise_floor
 
     t, x = TriangleCycles(amplitudes_mm=(0.05, 0.2, 0.5, 1.0), rate_mm_s=1.0).sample(200.0)
     true = np.flatnonzero(np.diff(np.sign(np.diff(x))) != 0) + 1
@@ -94,7 +94,7 @@ def test_smooth_force_sheds_noise_and_keeps_a_presliding_corner():
     pre-sliding branch is 22 samples long) with 0.2 N white noise: the smoothed force is
     closer to the truth than the noise overall and keeps the sharp reversal, which a fixed
     41-sample window smears by newtons."""
-    from fitstiff.denoise import _value_noise, smooth_force
+    from fitstiff.segments.denoise import _value_noise, smooth_force
 
     t = np.arange(4000) / 500.0
     x = 2e-3 * np.abs(((t / 0.2) % 2.0) - 1.0)           # triangles, 2 mm, 10 mm/s
@@ -135,8 +135,8 @@ def _paused_log(*, quantum: float, noise: float, seed: int = 0) -> Log:
 
 
 def test_an_encoder_toggling_by_one_count_in_a_pause_chatters_and_is_denoised():
-    from fitstiff.denoise import chatters
-    from fitstiff.problem import Problem
+    from fitstiff.inference.problem import Problem
+    from fitstiff.segments.denoise import chatters
 
     toggling = _paused_log(quantum=1e-6, noise=0.2e-6)
     seg = segment(toggling)
@@ -155,9 +155,9 @@ def test_an_encoder_toggling_by_one_count_in_a_pause_chatters_and_is_denoised():
 
 
 def test_a_denoised_pause_keeps_the_dahl_force_where_the_toggles_ratcheted_it():
-    from fitstiff.drive import drive_from_log
-    from fitstiff.model import build_model
-    from fitstiff.problem import Problem
+    from fitstiff.inference.problem import Problem
+    from fitstiff.physics.drive import drive_from_log
+    from fitstiff.physics.model import build_model
 
     log = _paused_log(quantum=1e-6, noise=0.2e-6)
     still = segment(log).still
@@ -174,8 +174,8 @@ def test_a_denoised_pause_keeps_the_dahl_force_where_the_toggles_ratcheted_it():
 
 def _grid_scan(values):
     """The noise floor's grid fit as a plain scan: one small ``lstsq`` per grid point (the
-    form :func:`fitstiff.noise.noise_floor` had before it solved the whole grid at once)."""
-    from fitstiff import noise
+    form :func:`fitstiff.signal.noise.noise_floor` had before it solved the whole grid at once)."""
+    from fitstiff.signal import noise
 
     f = np.asarray(values, float)
     lags = np.arange(1, 5)
@@ -198,7 +198,7 @@ def _grid_scan(values):
 def test_noise_floor_solves_its_grid_as_a_scan_of_it_would():
     """The vectorised grid (normal equations for every grid point at once) gives the scan's
     level and correlation on AR(1) noise of either sign, with drift and quantisation."""
-    from fitstiff.noise import noise_floor
+    from fitstiff.signal.noise import noise_floor
 
     rng = np.random.default_rng(7)
     for _ in range(60):

@@ -13,13 +13,13 @@ import pytest
 from conftest import CHROMIUM, check_renders_in_chromium, page_width_in_chromium
 
 from fitstiff._jax import jax, jnp
-from fitstiff.noise import noise_floor
 from fitstiff.errors import InputError
-from fitstiff.log import Rig
-from fitstiff.model import build_model
-from fitstiff.params import Parameterization
-from fitstiff.programs import TriangleCycles
-from fitstiff.simulate import Noise, simulate
+from fitstiff.io.log import Rig
+from fitstiff.physics.model import build_model
+from fitstiff.physics.params import Parameterization
+from fitstiff.physics.programs import TriangleCycles
+from fitstiff.physics.simulate import Noise, simulate
+from fitstiff.signal.noise import noise_floor
 
 RIG = Rig(bore=0.032, rod=0.0, stroke=0.7, start_position=0.35, supply_pressure=6e5)
 
@@ -112,7 +112,7 @@ def test_super_model_at_its_nulls_is_the_baseline():
     rate term in the baseline, so the smoothed velocity must survive the input terms at their
     null too)."""
     from fitstiff.diagnosis.supermodel import SuperProblem, candidate_names
-    from fitstiff.problem import Problem
+    from fitstiff.inference.problem import Problem
 
     logs = _logs("chamber+dahl+viscous", {"n": 1.4, "sigma0": 40, "Fc": 18, "c": 100})
     names, skipped = candidate_names("chamber+dahl", "all", logs=logs)
@@ -200,7 +200,7 @@ def test_a_candidate_whose_base_is_missing_is_an_input_error():
 
 def test_pressure_candidates_without_pressures_are_refused():
     from fitstiff.diagnosis.supermodel import candidate_names
-    from fitstiff.log import Log
+    from fitstiff.io.log import Log
 
     log = Log(name="bare", displacement=np.linspace(0, 1e-3, 50), force=np.zeros(50),
               time=np.arange(50) / 100.0, rig=Rig())
@@ -223,7 +223,7 @@ def test_withheld_viscous_is_found_and_named(tmp_path):
     """Two logs at 2 and 10 mm/s with viscous friction the baseline lacks: viscous ranks
     first, is accepted and removes most of the held-out gap; the CLI writes diagnosis.json
     with the DESIGN §5 keys."""
-    from fitstiff.simulate import write_log
+    from fitstiff.physics.simulate import write_log
 
     logs = _logs("chamber+dahl+viscous", {"n": 1.4, "sigma0": 40, "Fc": 18, "c": 150})
     paths = []
@@ -373,7 +373,7 @@ def test_a_p_value_below_1e_300_is_shown_as_such():
 
 def test_collinear_groups_join_candidates_the_screen_cannot_order():
     from fitstiff.diagnosis.screen import Score, collinear_groups
-    from fitstiff.params import Param
+    from fitstiff.physics.params import Param
 
     rng = np.random.default_rng(3)
     a, b = rng.standard_normal(500), rng.standard_normal(500)
@@ -398,7 +398,7 @@ def test_a_detectable_size_beyond_the_parameters_range_is_not_testable():
     import importlib
     from types import SimpleNamespace
 
-    from fitstiff.terms import TERMS
+    from fitstiff.physics.terms import TERMS
 
     module = importlib.import_module("fitstiff.diagnosis.diagnose")
     ratio = next(p for p in TERMS["stribeck"]().params() if p.field == "stribeck_ratio")

@@ -12,11 +12,11 @@ from conftest import REALDATA
 
 from fitstiff._testing.recovery import dataset
 from fitstiff.cli import main
-from fitstiff.comparison import compare
-from fitstiff.fitting import fit
-from fitstiff.log import Rig
-from fitstiff.programs import TriangleCycles
-from fitstiff.simulate import Noise, simulate, write_log
+from fitstiff.inference.comparison import compare
+from fitstiff.inference.fitting import fit
+from fitstiff.io.log import Rig
+from fitstiff.physics.programs import TriangleCycles
+from fitstiff.physics.simulate import Noise, simulate, write_log
 
 
 @pytest.mark.parametrize("friction, seed", [("dahl", 101), ("lugre", 102), ("maxwell_slip:3", 103)])
@@ -73,8 +73,8 @@ def test_a_spent_step_budget_with_a_flat_cost_is_converged_and_says_so():
     no longer changes on the scale of the standard errors. Started at the optimum with a
     one-step budget, the fit is converged and says why; two steps from the data-driven
     start, where the cost still falls, it is not."""
-    from fitstiff.fitting import fit_problem
-    from fitstiff.problem import Problem
+    from fitstiff.inference.fitting import fit_problem
+    from fitstiff.inference.problem import Problem
 
     log = _single(1.0, seed=3)
     problem = Problem([log], "dahl")
@@ -197,9 +197,9 @@ def test_closing_pressure_can_be_a_per_log_nuisance():
 def test_logs_denoised_and_left_as_measured_fit_together():
     """denoise='auto' denoises only noisy displacements; a batch of one noisy and one exact log
     crashed stacking drives with and without a velocity (found by benchmarks/withheld.py)."""
-    from fitstiff.problem import Problem
-    from fitstiff.programs import TriangleCycles
-    from fitstiff.simulate import Noise, simulate
+    from fitstiff.inference.problem import Problem
+    from fitstiff.physics.programs import TriangleCycles
+    from fitstiff.physics.simulate import Noise, simulate
 
     rig = Rig(bore=0.032, rod=0.0, stroke=0.7, start_position=0.35, supply_pressure=5e5)
     program = TriangleCycles(amplitudes_mm=(0.2, 1.0), rate_mm_s=5.0)
@@ -219,8 +219,8 @@ def test_logs_of_very_different_length_run_in_their_own_stacks():
     """Logs are stacked (one vmap-ed scan) and padded to the longest of their stack; a log
     shorter than PAD_RATIO x the longest gets its own stack. The residuals per log are the same
     whatever the stacking (only the order of the series in the vector follows the stacks)."""
-    from fitstiff import problem as problem_module
-    from fitstiff.problem import Problem
+    from fitstiff.inference import problem as problem_module
+    from fitstiff.inference.problem import Problem
 
     rig = Rig(bore=0.032, rod=0.0, stroke=0.7, start_position=0.35, supply_pressure=5e5)
     logs = [simulate("chamber+dahl", TriangleCycles(amplitudes_mm=(0.2, 1.0), rate_mm_s=rate),
@@ -282,7 +282,7 @@ def test_cli_compare_writes_the_winner_and_every_models_estimates(tmp_path, caps
 def test_cli_compare_checks_every_model_before_any_fit(tmp_path, capsys, monkeypatch):
     """A compared model the logs cannot carry (a chamber without bore_mm) stops the run
     before the first fit, naming that model; nothing is written."""
-    import fitstiff.comparison as comparison
+    import fitstiff.inference.comparison as comparison
 
     paths = _friction_only_logs(tmp_path)
     calls = []
@@ -334,7 +334,7 @@ def test_values_at_a_bound_or_beyond_the_data_are_flagged():
     the polytropic exponent at 1.0, where the data were made) says so; a breakaway force far
     above every measured force is called an extrapolation. An effect at its null (c = 0) is
     an absent effect, not a warning."""
-    from fitstiff.fitting import _implausible
+    from fitstiff.inference.fitting import _implausible
 
     rig = Rig.from_mapping({"bore_mm": 32, "stroke_mm": 700, "start_position_mm": 100,
                             "supply_bar": 6})
@@ -352,7 +352,7 @@ def test_values_at_a_bound_or_beyond_the_data_are_flagged():
     assert not any("extrapolation" in w for w in
                    _implausible(result.problem, values, {"breakaway_N": (18.0, 0.1)}))
     # LuGre's static friction below its sliding friction (the real O-ring fit: 0.47 < 6.19 N)
-    from fitstiff.problem import Problem
+    from fitstiff.inference.problem import Problem
 
     lugre = Problem([log], "chamber+lugre")
     for fs, flagged in ((9.0, True), (18.0, False)):
@@ -366,7 +366,7 @@ def test_fit_json_reads_back_to_the_fitted_theta():
     per-log nuisances (a fitted closing pressure included) give the fitted theta back."""
     import json
 
-    from fitstiff.fitting import FitResult
+    from fitstiff.inference.fitting import FitResult
 
     logs, _, _ = dataset("dahl", 5)
     result = fit(logs[2:], "chamber+dahl", free=["closing_pressure"])
@@ -381,7 +381,7 @@ def test_the_memory_lean_path_gives_the_fit_of_the_default_one(monkeypatch):
     """A Jacobian beyond LEAN_JACOBIAN_MB switches to the normal-equations solve and the
     column-at-a-time summary (benchmarks/fit_memory.py: 1 M samples in 923 MB); forced here
     on a small joint fit, it lands on the same optimum with the same standard errors."""
-    import fitstiff.fitting as fitting
+    import fitstiff.inference.fitting as fitting
 
     logs, _, _ = dataset("dahl", 5)
     default = fit(logs[:2], "chamber+dahl")
@@ -402,9 +402,9 @@ def test_the_summary_shares_its_jacobian_with_the_turning_point_columns():
     from the residuals' forward pass; both equal what the lean path computes apart
     (_eiv_gram, one JVP and VJP per parameter) and what per_log predicts. Calibration dataset
     0 has AR(1) displacement noise: its turning points' errors are not zero."""
-    import fitstiff.fitting as fitting
+    import fitstiff.inference.fitting as fitting
     from fitstiff._testing.calibration import dataset as calibration_dataset
-    from fitstiff.problem import Problem
+    from fitstiff.inference.problem import Problem
 
     logs, _ = calibration_dataset(0)
     problem = Problem(logs[:2], "chamber+dahl")
@@ -463,7 +463,7 @@ def test_held_out_near_ties_go_to_the_identifiable_model_then_bic():
     """Issue 31: on the demo's logs LuGre led Dahl held out by 0.0004 N (noise 0.2 N) with
     `identifiable: NO`; a near-tie (within 1 % of the noise) goes to the identifiable model,
     then to BIC; a clear held-out lead wins whatever else."""
-    from fitstiff.comparison import rank_held_out
+    from fitstiff.inference.comparison import rank_held_out
 
     held, bic = [0.2008, 0.2004, 0.2300], [422.2, 426.9, 400.0]
     assert rank_held_out(held, bic, [True, False, True], tie=0.002) == [0, 1, 2]

@@ -17,12 +17,12 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from fitstiff._testing.fleet import make_fleet
 from fitstiff.cli import main
 from fitstiff.errors import InputError
 from fitstiff.fleet import discover, fit_fleet, population
 from fitstiff.fleet.engine import WORKER_ENV
 from fitstiff.fleet.population import benjamini_hochberg
-from fitstiff._testing.fleet import make_fleet
 
 #: columns that must agree bit for bit between two runs of one fleet
 ESTIMATES = ["presliding_slope_N_per_mm", "presliding_slope_N_per_mm_stderr", "breakaway_N",
@@ -174,7 +174,7 @@ def fleet(tmp_path_factory):
 def test_fleet_rows_are_the_single_fits(fleet):
     """Every good unit's row holds what fitstiff.fit gives for its logs, to the bit."""
     from fitstiff import fit
-    from fitstiff.loading import load_logs
+    from fitstiff.io.loading import load_logs
 
     root, table = fleet
     for _, row in table[table["cylinder"].isin(["cyl0000", "cyl0007"])].iterrows():
@@ -224,9 +224,9 @@ def test_a_rerun_fits_only_new_or_changed_units(fleet, tmp_path):
 def test_batched_solves_match_one_at_a_time(fleet):
     """lanes > 1: the vmap-ed solves give the estimates of the single fits (to solver
     precision), and a lane's result does not depend on its neighbours."""
-    from fitstiff.fitting import fit_problem, fit_problems
-    from fitstiff.loading import load_logs
-    from fitstiff.problem import Problem
+    from fitstiff.inference.fitting import fit_problem, fit_problems
+    from fitstiff.inference.problem import Problem
+    from fitstiff.io.loading import load_logs
 
     root, _ = fleet
     problems = [Problem(load_logs(sorted((root / f"cyl{c:04d}").glob("*.csv"))),

@@ -13,9 +13,9 @@ import pytest
 from matplotlib.figure import Figure
 
 from conftest import check_renders_in_chromium, needs_chromium
-from fitstiff.cli import main
-from fitstiff.fleet.page import plot_distribution, plot_drift, plot_loops
 from fitstiff._testing.fleet import make_fleet
+from fitstiff.cli import main
+from fitstiff.present.fleet_page import plot_distribution, plot_drift, plot_loops
 
 
 @pytest.fixture(scope="module")

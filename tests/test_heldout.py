@@ -15,9 +15,9 @@ import numpy as np
 import pytest
 
 from fitstiff._testing.heldout import blocks_of, leave_one_block_out, leave_one_log_out, pooled
-from fitstiff.log import Rig
-from fitstiff.programs import Concat, TriangleCycles
-from fitstiff.simulate import Noise, simulate
+from fitstiff.io.log import Rig
+from fitstiff.physics.programs import Concat, TriangleCycles
+from fitstiff.physics.simulate import Noise, simulate
 
 RIG = Rig(bore=0.032, rod=0.0, stroke=0.7, start_position=0.35, supply_pressure=6e5)
 CANDIDATES = "viscous,asymmetry,force_drift"

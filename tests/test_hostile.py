@@ -414,14 +414,14 @@ def test_a_spike_the_loader_accepts_gives_a_finite_result_or_names_it(tmp_path, 
         assert not (tmp_path / "out" / f"{command}.json").exists()
     else:
         assert code == 0, err
-        from fitstiff.guards import first_nonfinite
+        from fitstiff.io.guards import first_nonfinite
         assert first_nonfinite(json.loads((tmp_path / "out" / f"{command}.json")
                                           .read_text())) is None
 
 
 def memory_log(force_at: dict[int, float] | None = None, n: int = 400):
     """A small triangle log made in memory (so the loader's bounds do not apply)."""
-    from fitstiff.log import Log
+    from fitstiff.io.log import Log
 
     x = 1e-3 * np.interp(np.arange(n), [0, n // 4, 3 * n // 4, n - 1], [0, 1, -1, 0])
     force = 40e3 * np.clip(x, -4.5e-4, 4.5e-4) + 0.01 * np.sin(np.arange(n))
@@ -431,7 +431,7 @@ def memory_log(force_at: dict[int, float] | None = None, n: int = 400):
 
 
 def test_fit_refuses_a_spike_that_did_not_pass_the_loader():
-    from fitstiff.fitting import fit
+    from fitstiff.inference.fitting import fit
 
     with pytest.raises(InputError) as info:
         fit([memory_log({312: 1e300})], "viscous")
@@ -444,7 +444,7 @@ def test_fit_refuses_a_spike_that_did_not_pass_the_loader():
 def test_non_finite_residuals_are_an_input_error_not_a_result():
     """A fixed parameter that makes the model overflow: the fit stops at the guard instead of
     summarising inf (the issue's fit.json built on inf)."""
-    from fitstiff.fitting import fit
+    from fitstiff.inference.fitting import fit
 
     with pytest.raises(InputError, match=r"^memory: the fit's whitened residuals and "
                                          r"Jacobian: not finite or beyond 1e\+100"):
@@ -452,7 +452,7 @@ def test_non_finite_residuals_are_an_input_error_not_a_result():
 
 
 def test_likely_cause_names_the_spike_with_its_line(tmp_path):
-    from fitstiff.guards import likely_cause, nonfinite_error
+    from fitstiff.io.guards import likely_cause, nonfinite_error
 
     log = memory_log({312: 1e300}).replace(path=tmp_path / "spike.csv", source={"header": True})
     culprit, cause = likely_cause([memory_log(), log])
@@ -465,7 +465,7 @@ def test_likely_cause_names_the_spike_with_its_line(tmp_path):
 
 
 def test_result_json_with_inf_or_nan_is_not_written(tmp_path):
-    from fitstiff.output import OutputDir
+    from fitstiff.io.output import OutputDir
 
     out = OutputDir(tmp_path / "out")
     with pytest.raises(InputError) as info:
@@ -503,7 +503,7 @@ def test_a_floating_point_warning_in_a_command_becomes_one_line(tmp_path, capsys
 def test_velocity_of_a_log_with_a_long_pause_is_exact():
     """Time in hours with a long gap: the denoising velocity stays what it is without the gap
     (window sums relative to each sample; running sums over the log lost every digit)."""
-    from fitstiff.denoise import segment_velocity
+    from fitstiff.segments.denoise import segment_velocity
 
     n = 1000
     t = np.arange(n) * 1e-3
@@ -519,7 +519,7 @@ def test_velocity_of_a_log_with_a_long_pause_is_exact():
 
 
 def test_plain_decimal_numbers():
-    from fitstiff.validation import cli_number, is_decimal
+    from fitstiff.io.validation import cli_number, is_decimal
 
     good = ["0", "-0.0", "+12", "1.", ".5", "1.5e-3", "2E+10", " 7 "]
     bad = ["1_000", "0x10", "nan", "inf", "Infinity", "١٢", "１２", "1e", "e5", "+-1", "", "1 2"]

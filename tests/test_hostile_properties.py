@@ -6,7 +6,7 @@ duplication / swaps, header renames, delimiter changes, extreme magnitudes (a co
 10**k), JSON type changes and nesting in the sidecar - and asserts:
 
 - ``load_log`` returns a valid log (finite SI arrays, at least ``MIN_SAMPLES`` samples, time
-  strictly increasing, every value within :data:`fitstiff.validation.CHANNEL_LIMITS`) that
+  strictly increasing, every value within :data:`fitstiff.io.validation.CHANNEL_LIMITS`) that
   segmentation and ``inspect_log`` then describe, or it raises a fitstiff
   :class:`~fitstiff.errors.InputError` with a one-line message;
 - never another exception, never a ``RuntimeWarning`` (they are errors here);
@@ -35,11 +35,11 @@ from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
 from fitstiff.errors import InputError
-from fitstiff.inspection import inspect_log
-from fitstiff.loading import MIN_SAMPLES, load_log
-from fitstiff.log import RIG_KEYS
-from fitstiff.segmentation import segment
-from fitstiff.validation import CHANNEL_LIMITS
+from fitstiff.io.loading import MIN_SAMPLES, load_log
+from fitstiff.io.log import RIG_KEYS
+from fitstiff.io.validation import CHANNEL_LIMITS
+from fitstiff.segments.inspection import inspect_log
+from fitstiff.segments.segmentation import segment
 
 EXAMPLES = 500
 SETTINGS = settings(max_examples=EXAMPLES, deadline=None, derandomize=True, database=None,

@@ -16,12 +16,12 @@ import pytest
 
 from fitstiff.cli import main
 from fitstiff.data import fig4_logs
-from fitstiff.fitting import fit
-from fitstiff.identifiability import assess_identifiability, reversal_travel
-from fitstiff.loading import load_logs
-from fitstiff.programs import Ramp, TriangleCycles
-from fitstiff.report import write_report
-from fitstiff.simulate import simulate, write_log
+from fitstiff.inference.fitting import fit
+from fitstiff.inference.identifiability import assess_identifiability, reversal_travel
+from fitstiff.io.loading import load_logs
+from fitstiff.physics.programs import Ramp, TriangleCycles
+from fitstiff.physics.simulate import simulate, write_log
+from fitstiff.present.report import write_report
 
 
 def _simulate(program, rig, seed=1):
@@ -32,7 +32,7 @@ def _simulate(program, rig, seed=1):
 @pytest.fixture(scope="module")
 def ramp_run(tmp_path_factory):
     """``fitstiff fit`` on one 2 mm ramp, and the report of it: (fit.json, stdout, page)."""
-    from fitstiff.log import Rig
+    from fitstiff.io.log import Rig
 
     rig = Rig.from_mapping({"bore_mm": 32, "rod_mm": 0, "stroke_mm": 700,
                             "start_position_mm": 350, "supply_bar": 6})

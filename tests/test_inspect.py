@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from fitstiff.cli import main
-from fitstiff.inspection import format_summary, inspect_log
-from fitstiff.loading import load_log
-from fitstiff.segmentation import REGIONS
+from fitstiff.io.loading import load_log
+from fitstiff.segments.inspection import format_summary, inspect_log
+from fitstiff.segments.segmentation import REGIONS
 
 FS = 200.0
 SIDECAR = {"bore_mm": 32, "rod_mm": 0, "stroke_mm": 100, "start_position_mm": 50,
@@ -139,8 +139,8 @@ def test_a_stroke_shorter_than_the_presliding_range_is_named(capsys):
     whose longest legs reach the range (minor loops inside) gets no such note."""
     from conftest import polyline
 
-    from fitstiff.log import Log
-    from fitstiff.segmentation import segment
+    from fitstiff.io.log import Log
+    from fitstiff.segments.segmentation import segment
 
     t, x = polyline([0.0, 0.2e-3, 0.0, 0.2e-3, 0.0], rate=0.1e-3, fs=1000.0)
     short = Log("short", displacement=x, force=np.zeros_like(x), time=t)

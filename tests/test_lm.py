@@ -1,4 +1,4 @@
-"""fitstiff.lm's Levenberg-Marquardt, in its QR and its normal-equations form: solutions,
+"""fitstiff.inference.lm's Levenberg-Marquardt, in its QR and its normal-equations form: solutions,
 statuses, the bound walk."""
 
 import numpy as np
@@ -6,8 +6,8 @@ import optimistix as optx
 import pytest
 
 from fitstiff._jax import jax, jnp
-from fitstiff.lm import (CONVERGED, MAX_STEPS, NONFINITE, STATUS, jacobian_rows,
-                         levenberg_marquardt, r_factor, wide_dot)
+from fitstiff.inference.lm import (CONVERGED, MAX_STEPS, NONFINITE, STATUS, jacobian_rows,
+                                   levenberg_marquardt, r_factor, wide_dot)
 
 T = np.linspace(0.0, 4.0, 200)
 TRUTH = np.array([2.5, -1.3, 0.7])

@@ -13,11 +13,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fitstiff.columns import match_header
 from fitstiff.cli._common import add_log_arguments, add_out_argument, logs_from_args
 from fitstiff.errors import InputError
-from fitstiff.loading import load_log, load_logs
-from fitstiff.log import STANDARD_AMBIENT_PA
+from fitstiff.io.columns import match_header
+from fitstiff.io.loading import load_log, load_logs
+from fitstiff.io.log import STANDARD_AMBIENT_PA
 from fitstiff.units import parse_unit
 
 HEADER = "time_s,displacement_mm,force_N,p_a_bar"
@@ -484,7 +484,7 @@ def test_a_spike_is_named_at_load_and_in_the_fit(tmp_path):
     assert "times the noise floor" in note and note.endswith("is not to be trusted")
     assert not [n for n in log.notes if "reaches" in n]     # the scale check leaves it out
 
-    from fitstiff.fitting import fit
+    from fitstiff.inference.fitting import fit
 
     result = fit([log], "chamber+dahl")
     assert f"log: {note}" in result.warnings

@@ -25,7 +25,7 @@ import fitstiff.cli.simulate
 from fitstiff.cli import main
 from fitstiff.data import fig4_logs
 from fitstiff.errors import InputError
-from fitstiff.output import LOCK_NAME, STAGING_PREFIX, OutputDir
+from fitstiff.io.output import LOCK_NAME, STAGING_PREFIX, OutputDir
 
 FIG4 = fig4_logs()[-1]          # p6bar_x350mm.csv, 1 481 samples, with sidecar
 
@@ -240,7 +240,7 @@ def test_a_failed_run_leaves_the_directory_as_it_was(tmp_path, capsys, monkeypat
     assert main(["fit", str(FIG4), "--out", str(out)]) == 0
     before = snapshot(out)
 
-    from fitstiff.fitting import FitResult
+    from fitstiff.inference.fitting import FitResult
 
     to_dict, calls = FitResult.to_dict, []
 
@@ -279,7 +279,7 @@ def test_staging_of_a_killed_run_is_marked_and_swept(tmp_path):
 # -- the lock ---------------------------------------------------------------------------------
 HOLDER = """
 import sys
-from fitstiff.output import OutputDir
+from fitstiff.io.output import OutputDir
 out = OutputDir(sys.argv[1], planned=["fit.json"]).claim()
 print("claimed", flush=True)
 sys.stdin.read()
@@ -329,7 +329,7 @@ def test_concurrent_posteriors_second_is_refused_first_completes(tmp_path, capsy
         if first.poll() is None:
             first.send_signal(signal.SIGKILL)
     assert first.returncode == 0, stderr
-    from fitstiff.chain import ChainBackend
+    from fitstiff.inference.chain import ChainBackend
 
     assert ChainBackend(out / "chain.h5", read_only=True).iteration == 200
     assert not (out / LOCK_NAME).exists()

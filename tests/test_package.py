@@ -32,3 +32,81 @@ def test_the_command_line_limits_malloc_arenas_unless_the_user_did():
                             env=env | {"MALLOC_ARENA_MAX": "4"}, check=True).stdout.strip()
     assert theirs == "False"
     assert ours == ("True" if sys.platform.startswith("linux") else "False")
+
+
+#: fitstiff's layers, lowest first: a module imports only from its own layer or a lower one
+#: (README, "Layout"); ``_testing`` (simulators and references for tests and benchmarks) sits
+#: on top and nothing of the library imports it
+LAYERS = (("", "__init__", "errors", "units", "_jax", "_malloc", "_interrupts", "data"),
+          ("signal",), ("io",), ("segments",), ("physics",), ("inference",), ("diagnosis",),
+          ("fleet",), ("present",), ("cli", "__main__"), ("_testing",))
+
+
+def _imports():
+    """(module, line, imported module) for every ``fitstiff`` import in the package, those
+    inside functions included."""
+    import ast
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1] / "fitstiff"
+    for path in sorted(root.rglob("*.py")):
+        name = ".".join(path.relative_to(root.parent).with_suffix("").parts)
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                targets = [node.module]
+            elif isinstance(node, ast.Import):
+                targets = [alias.name for alias in node.names]
+            else:
+                continue
+            for target in targets:
+                if target == "fitstiff" or target.startswith("fitstiff."):
+                    yield name, node.lineno, target
+
+
+def _layer(module: str) -> int:
+    part = module.split(".")[1] if "." in module else ""
+    return next(i for i, names in enumerate(LAYERS) if part in names)
+
+
+def test_imports_only_point_down_the_layers():
+    """The regrouping of issue 35: no module imports from a layer above its own."""
+    upward = [f"{name}:{line} imports {target}" for name, line, target in _imports()
+              if _layer(target) > _layer(name)]
+    assert not upward, "\n".join(upward)
+
+
+def test_no_cycle_among_module_level_imports():
+    """Module-level imports form no cycle (a function may import lazily, e.g. to keep
+    ``import fitstiff`` light)."""
+    import ast
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1] / "fitstiff"
+    graph: dict[str, set[str]] = {}
+    modules = {".".join(p.relative_to(root.parent).with_suffix("").parts).removesuffix(
+        ".__init__") for p in root.rglob("*.py")}
+    for path in root.rglob("*.py"):
+        name = ".".join(path.relative_to(root.parent).with_suffix("").parts).removesuffix(
+            ".__init__")
+        edges = graph.setdefault(name, set())
+        for node in ast.parse(path.read_text(encoding="utf-8")).body:
+            if isinstance(node, ast.ImportFrom) and node.level == 0 and node.module and \
+                    node.module.startswith("fitstiff"):
+                edges.add(node.module)
+                edges.update(f"{node.module}.{a.name}" for a in node.names
+                             if f"{node.module}.{a.name}" in modules)
+    state: dict[str, int] = {}
+
+    def visit(node, path):
+        if state.get(node) == 1:
+            raise AssertionError("import cycle: " + " -> ".join(path[path.index(node):] + [node]))
+        if state.get(node) == 2:
+            return
+        state[node] = 1
+        for nxt in sorted(graph.get(node, ())):
+            if nxt in graph and nxt != node:
+                visit(nxt, path + [node])
+        state[node] = 2
+
+    for node in sorted(graph):
+        visit(node, [])

@@ -11,13 +11,14 @@ import math
 import numpy as np
 import pytest
 
-from fitstiff import derived
 from fitstiff._jax import jax, jnp
 from fitstiff.errors import InputError
-from fitstiff.model import build_model
-from fitstiff.params import TRANSFORMS, Param, Parameterization, named_params, to_display, to_si
-from fitstiff.problem import NUISANCE_PARAMS
-from fitstiff.terms import TERMS
+from fitstiff.inference.problem import NUISANCE_PARAMS
+from fitstiff.physics import derived
+from fitstiff.physics.model import build_model
+from fitstiff.physics.params import (TRANSFORMS, Param, Parameterization, named_params, to_display,
+                                     to_si)
+from fitstiff.physics.terms import TERMS
 
 #: every term with its default spec, plus the spec options that declare more parameters
 SPECS = [(name, None) for name in TERMS] + [("maxwell_slip", "3"), ("maxwell_slip", "1"),

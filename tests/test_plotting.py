@@ -1,4 +1,5 @@
-"""fitstiff.plotting: artists, labels with units, closed-form numbers, errors, baseline images.
+"""fitstiff.present.plotting: artists, labels with units, closed-form numbers, errors, baseline
+images.
 
 Everything draws on fresh :class:`~matplotlib.figure.Figure` objects (Agg, no pyplot state).
 The fitted example comes from ``make_baselines.example_fit`` (module-scoped: one fit).
@@ -17,11 +18,11 @@ from matplotlib.collections import PolyCollection
 from matplotlib.figure import Figure
 from matplotlib.testing.compare import compare_images
 
-from fitstiff import plotting
 from fitstiff.errors import InputError
-from fitstiff.model import build_model
-from fitstiff.params import Parameterization
-from fitstiff.stiffness import chamber_stiffness
+from fitstiff.physics.model import build_model
+from fitstiff.physics.params import Parameterization
+from fitstiff.physics.stiffness import chamber_stiffness
+from fitstiff.present import plotting
 
 IMAGE_TOLERANCE = 5.0
 """RMS pixel difference (0..255) allowed: a rerun gives 0, text rendering of another FreeType a
@@ -140,7 +141,7 @@ def test_reversal_zoom_window_rejects_bad_input(ex):
     with pytest.raises(InputError, match="segmentation of 'example': has \\d+ samples, the log"):
         plotting.reversal_zoom_window(ex.segmentation, ex.log.slice(0, 100))
     still = ex.log.slice(0, 5)
-    from fitstiff.segmentation import segment
+    from fitstiff.segments.segmentation import segment
     with pytest.raises(InputError, match="the log has no direction reversal"):
         plotting.reversal_zoom_window(segment(still), still)
 

@@ -15,17 +15,17 @@ import numpy as np
 import pytest
 from conftest import REPO, polyline
 
-from fitstiff.chain import ChainBackend, ChainStore
 from fitstiff.cli import main
 from fitstiff.errors import InputError
-from fitstiff.likelihood import (AR1, Gaussian, Layout, LinearNuisances, StudentT,
-                                 TurningPoints)
-from fitstiff.log import Log
-from fitstiff.loading import load_log
-from fitstiff.posterior import sample_posterior
-from fitstiff.priors import Priors
-from fitstiff.problem import Problem, ResidualSeries
-from fitstiff.simulate import write_log
+from fitstiff.inference.chain import ChainBackend, ChainStore
+from fitstiff.inference.likelihood import (AR1, Gaussian, Layout, LinearNuisances, StudentT,
+                                           TurningPoints)
+from fitstiff.inference.posterior import sample_posterior
+from fitstiff.inference.priors import Priors
+from fitstiff.inference.problem import Problem, ResidualSeries
+from fitstiff.io.loading import load_log
+from fitstiff.io.log import Log
+from fitstiff.physics.simulate import write_log
 
 FIG4 = REPO / "data" / "synthetic" / "fig4" / "p6bar_x350mm.csv"
 
@@ -271,7 +271,7 @@ def test_posterior_json_reads_back_to_the_same_content():
     a file from before integrated offsets (no ``integrated``, ``moves``)."""
     import dataclasses
 
-    from fitstiff.posterior import Posterior
+    from fitstiff.inference.posterior import Posterior
 
     rng = np.random.default_rng(1)
     log = _linear_log()
@@ -528,8 +528,8 @@ def test_speed_benchmark_reference_is_the_same_log_posterior():
     same function (up to one constant), or the speed-up means nothing."""
     from fitstiff._testing.speed import reference_log_posterior
     from fitstiff._testing.speed import make_log
-    from fitstiff.fitting import fit_problem
-    from fitstiff.posterior import log_posterior
+    from fitstiff.inference.fitting import fit_problem
+    from fitstiff.inference.posterior import log_posterior
 
     problem = Problem([make_log()], "chamber+dahl")
     fit = fit_problem(problem)
@@ -549,11 +549,11 @@ def test_posterior_that_contradicts_least_squares_says_the_model_is_wrong():
     the model describes (a Dahl log fitted with dahl), nothing is said."""
     import types
 
-    from fitstiff.fitting import fit
-    from fitstiff.log import Rig
-    from fitstiff.posterior import _disagreements
-    from fitstiff.programs import TriangleCycles
-    from fitstiff.simulate import Noise, simulate
+    from fitstiff.inference.fitting import fit
+    from fitstiff.inference.posterior import _disagreements
+    from fitstiff.io.log import Rig
+    from fitstiff.physics.programs import TriangleCycles
+    from fitstiff.physics.simulate import Noise, simulate
 
     rng = np.random.default_rng(0)
     derived = {"presliding_slope_N_per_mm": 13.8 + 0.27 * rng.standard_normal((50, 8)),

@@ -7,8 +7,8 @@ import pytest
 
 from fitstiff._testing.recovery import dataset
 from fitstiff.errors import InputError
-from fitstiff.problem import Problem
-from fitstiff.segmentation import segment
+from fitstiff.inference.problem import Problem
+from fitstiff.segments.segmentation import segment
 
 
 @pytest.fixture(scope="module")
@@ -95,7 +95,7 @@ def test_the_per_log_nuisances_go_through_the_transform_layer(logs):
 def test_unpack_physical_is_unpack_without_the_transforms(logs):
     """The fit's summary reads the fitted model and the per-log nuisances from the physical
     values it computed (unpack_physical): the same model and nuisances as unpack, in NumPy."""
-    from fitstiff.params import Parameterization
+    from fitstiff.physics.params import Parameterization
 
     problem = Problem(logs, "chamber+dahl", free=["closing_pressure"])
     theta = problem.pack(problem.model, {"offset": [0.5, -0.2], "friction_state0": [0.3, -0.5],

@@ -13,7 +13,7 @@ import pytest
 
 from conftest import REALDATA
 
-from fitstiff.loading import load_log
+from fitstiff.io.loading import load_log
 
 SAMPLES = {1: 7139, 3: 7834, 5: 10321, 7: 8720}   # rows in O-ring_<bar>bar.csv
 SLIDING_SPEED = 2e-3                               # m/s: well above reversal transients
@@ -79,7 +79,7 @@ def oring_fit_report(tmp_path_factory):
     """``fitstiff fit`` of all four logs with chamber+dahl (a regulated chamber: the logged
     pressures drive it) and its report."""
     from fitstiff.cli import main
-    from fitstiff.report import write_report
+    from fitstiff.present.report import write_report
 
     out = tmp_path_factory.mktemp("oring_fit")
     paths = [str(path_of(bar)) for bar in SAMPLES]
@@ -122,7 +122,7 @@ def test_diagnosis_of_the_four_logs_accepts_pressure_friction_only(candidates):
     benchmarks/results/diagnosis_oring.json). Against the whole library (``-m heavy``) and
     against the two candidates of issue 31's leak (in the suite)."""
     from fitstiff.diagnosis import diagnose
-    from fitstiff.loading import load_logs
+    from fitstiff.io.loading import load_logs
 
     logs = load_logs([path_of(bar) for bar in SAMPLES], fmt="zillen_oring")
     result = diagnose(logs, candidates=candidates)
@@ -142,9 +142,9 @@ def test_diagnosis_of_the_four_logs_accepts_pressure_friction_only(candidates):
     # issue 31: the heat maps (RMS above the noise in N, one scale for before and after) show
     # the change: the z-score saturated every cell of these logs (values up to 1.8e5)
     from fitstiff.diagnosis.gap import region_summary
-    from fitstiff.noise import NoiseFloor
-    from fitstiff.problem import Problem
-    from fitstiff.segmentation import segment
+    from fitstiff.inference.problem import Problem
+    from fitstiff.segments.segmentation import segment
+    from fitstiff.signal.noise import NoiseFloor
 
     problem = Problem(logs, result.baseline)
     noise = [NoiseFloor(float(result.noise_N[log.name]["sigma_N"]),
@@ -181,7 +181,7 @@ def test_a_folds_heldout_rms_on_the_seal_logs_does_not_depend_on_its_start():
     0.3 in every free unconstrained entry, give the same held-out RMS per log to 1 %."""
     from fitstiff.diagnosis.select import FoldFit, fold_starts, folds_for, held_out
     from fitstiff.diagnosis.supermodel import SuperProblem
-    from fitstiff.loading import load_logs
+    from fitstiff.io.loading import load_logs
 
     logs = load_logs([path_of(bar) for bar in SAMPLES], fmt="zillen_oring")
     sp = SuperProblem(logs, "chamber+dahl", ["pressure_friction"])
@@ -227,8 +227,8 @@ def test_lugre_on_the_seal_logs_converges_and_its_breakaway_is_flagged():
     as not converged: its initial friction states walk towards their bounds while the cost
     stays flat. Now it converges and says what still moves; its "breakaway" Fs below the
     sliding friction Fc is flagged as not seal physics."""
-    from fitstiff.fitting import fit
-    from fitstiff.loading import load_logs
+    from fitstiff.inference.fitting import fit
+    from fitstiff.io.loading import load_logs
 
     logs = load_logs([path_of(bar) for bar in SAMPLES], fmt="zillen_oring")
     result = fit(logs, "chamber+lugre")
@@ -275,7 +275,7 @@ def test_posterior_that_contradicts_the_fit_says_the_model_is_wrong():
     standard deviations from least squares (slope 13.9 against 37.6 +- 3.9 N/mm, breakaway
     7.2 against 7.9 N): it says the model does not describe the log and points to fitstiff
     diagnose, instead of blaming the sampler."""
-    from fitstiff.posterior import sample_posterior
+    from fitstiff.inference.posterior import sample_posterior
 
     post = sample_posterior([load_log(path_of(7), fmt="zillen_oring")], "chamber+dahl", seed=0,
                             progress=False)

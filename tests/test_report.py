@@ -16,7 +16,7 @@ from conftest import REPO, check_renders_in_chromium, needs_chromium
 from fitstiff.cli import main
 from fitstiff.data import fig4_logs
 from fitstiff.errors import InputError
-from fitstiff.report import FIGURES, REPORT, REPORT_MANIFEST, write_report
+from fitstiff.present.report import FIGURES, REPORT, REPORT_MANIFEST, write_report
 
 IMG = re.compile(r"<img\b[^>]*\bsrc=\"([^\"]*)\"")
 
@@ -210,8 +210,8 @@ def test_log_table_shows_the_regulated_pressure_a_log_carries():
     regulated chamber) shows that pressure (mean, bar gauge), not n/a."""
     import numpy as np
 
-    from fitstiff.log import Log, Rig
-    from fitstiff.report import _pressure_cell
+    from fitstiff.io.log import Log, Rig
+    from fitstiff.present.report import _pressure_cell
 
     x = np.linspace(0.0, 1e-3, 50)
     regulated = Log("r", displacement=x, force=np.zeros(50), time=np.arange(50) * 0.01,

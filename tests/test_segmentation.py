@@ -18,15 +18,14 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
 from conftest import REALDATA
 
 from fitstiff.errors import InputError
-from fitstiff.log import Log, Rig
-from fitstiff.segmentation import REGIONS, SPEED_BANDS, estimate_noise, segment
+from fitstiff.io.log import Log, Rig
+from fitstiff.segments.segmentation import REGIONS, SPEED_BANDS, estimate_noise, segment
 
 FS = 1000.0          # Hz
 SIGMA = 5e-6         # m: 5 % of the smallest amplitude, 0.1 mm
@@ -425,7 +424,7 @@ def test_real_oring_logs_have_19_reversals(pressure):
     mid-way down the 10th return stroke: 20 legs, 19 turning points. The laser has ~50-90
     single-sample dropouts per file (0.2-0.6 mm back-steps) that the running median removes;
     without it they would add over 90 false reversals per file."""
-    from fitstiff.loading import load_log
+    from fitstiff.io.loading import load_log
 
     log = load_log(REALDATA / f"O-ring_{pressure}bar.csv", fmt="zillen_oring")
     seg = segment(log)
@@ -441,9 +440,9 @@ def test_one_standstill_definition_for_simulator_and_fit():
     """The simulator's dwell clock and the fit's (the segmentation's standstill region) are
     one definition: on the noise-free log they agree sample for sample, on a noisy one the
     pause edges move by at most two samples each."""
-    from fitstiff.log import Rig
-    from fitstiff.programs import Concat, Pause, Ramp
-    from fitstiff.simulate import Noise, simulate
+    from fitstiff.io.log import Rig
+    from fitstiff.physics.programs import Concat, Pause, Ramp
+    from fitstiff.physics.simulate import Noise, simulate
 
     program = Concat(parts=(Ramp(distance_mm=1.0, rate_mm_s=1.0), Pause(duration_s=1.0),
                             Ramp(distance_mm=-1.0, rate_mm_s=1.0), Pause(duration_s=0.5),

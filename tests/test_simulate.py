@@ -17,16 +17,16 @@ import sys
 import numpy as np
 import pytest
 
-from fitstiff import gas_spring
 from fitstiff.cli import main
-from fitstiff.drive import make_drive
 from fitstiff.errors import InputError
-from fitstiff.log import Rig
-from fitstiff.model import build_model
-from fitstiff.params import Parameterization
-from fitstiff.programs import (Concat, NestedLoops, Pause, Ramp, SineSweep, TriangleCycles,
-                               Waypoints)
-from fitstiff.simulate import Noise, format_log, simulate, write_log
+from fitstiff.io.log import Rig
+from fitstiff.physics import gas_spring
+from fitstiff.physics.drive import make_drive
+from fitstiff.physics.model import build_model
+from fitstiff.physics.params import Parameterization
+from fitstiff.physics.programs import (Concat, NestedLoops, Pause, Ramp, SineSweep, TriangleCycles,
+                                       Waypoints)
+from fitstiff.physics.simulate import Noise, format_log, simulate, write_log
 
 from conftest import REPO
 
@@ -235,8 +235,8 @@ def test_simulate_reports_bad_input(paper_rig):
 # ------------------------------------------------------------------------------ the files
 
 def test_written_log_round_trips_through_the_loader(paper_rig, tmp_path):
-    loading = pytest.importorskip("fitstiff.loading",
-                                  reason="fitstiff.loading (load_log) is not written yet")
+    loading = pytest.importorskip("fitstiff.io.loading",
+                                  reason="fitstiff.io.loading (load_log) is not written yet")
     sim = simulate("chamber+dahl", TriangleCycles(amplitudes_mm=(0.1, 0.5), rate_mm_s=1.0),
                    rig=paper_rig, params=SEAL, seed=5, name="ignored", rate_hz=200.0)
     written = write_log(sim.log, tmp_path / "run1.csv", truth=sim.truth)

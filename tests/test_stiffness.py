@@ -11,12 +11,12 @@ import math
 
 import pytest
 
-from fitstiff import gas_spring
 from fitstiff.cli import main
 from fitstiff.errors import InputError
-from fitstiff.log import Rig
-from fitstiff.stiffness import (JSON_KEYS, chamber_stiffness, stiffness_table,
-                                table_positions)
+from fitstiff.io.log import Rig
+from fitstiff.physics import gas_spring
+from fitstiff.physics.stiffness import (JSON_KEYS, chamber_stiffness, stiffness_table,
+                                        table_positions)
 
 # the paper's cylinder: Festo OSP-P 32 rodless, 700 mm stroke, 6 bar gauge, n = 1.4
 BORE, STROKE, GAUGE, N = 0.032, 0.700, 6e5, 1.4

@@ -12,13 +12,13 @@ import pytest
 from conftest import polyline, triangle
 from scipy.integrate import solve_ivp
 
-from fitstiff import gas_spring
 from fitstiff._jax import jax, jnp
-from fitstiff.drive import make_drive
 from fitstiff.errors import InputError
-from fitstiff.model import build_model, parse_spec
-from fitstiff.params import Parameterization
-from fitstiff.terms import EFFECTS, ROLES, TERMS, Chamber, FrictionBase, Modifier
+from fitstiff.physics import gas_spring
+from fitstiff.physics.drive import make_drive
+from fitstiff.physics.model import build_model, parse_spec
+from fitstiff.physics.params import Parameterization
+from fitstiff.physics.terms import EFFECTS, ROLES, TERMS, Chamber, FrictionBase, Modifier
 
 
 def run(spec, t, x, *, values=None, rig=None, **drive_kw):
@@ -156,7 +156,7 @@ def test_chamber_stepwise_equals_exact_law(paper_rig):
 
 
 def test_chamber_measured_and_vented_modes(paper_rig):
-    from fitstiff.log import Rig
+    from fitstiff.io.log import Rig
 
     rig = Rig.from_mapping({"bore_mm": 25})
     t, x = triangle([1e-3])
@@ -176,8 +176,8 @@ def test_chamber_measured_and_vented_modes(paper_rig):
     ("viscous", None, {}), ("inertia", None, {}), ("force_drift", None, {})])
 def test_terms_evaluated_outside_the_scan_equal_stepping(spec, rig, drive_kw):
     """The contract of Term.run_all: the same states and forces as stepping from init."""
-    from fitstiff.log import Rig
-    from fitstiff.terms import Modulation
+    from fitstiff.io.log import Rig
+    from fitstiff.physics.terms import Modulation
 
     t, x = triangle([1e-3, 5e-3])
     x = x + 0.2e-3                        # the chambers close at x[0], not at 0
@@ -217,7 +217,7 @@ def test_terms_with_a_memory_are_stepped(spec):
 # -- the chamber's powers as a series ----------------------------------------------------------
 @pytest.mark.parametrize("span", [2.0**-30, 2.0**-12, 2.0**-8, 2.0**-5])
 def test_polytropic_series_equals_exp_with_its_derivatives(span):
-    from fitstiff.terms.chamber import SERIES_EXPONENT_LIMIT, polytropic_ratio, series_terms
+    from fitstiff.physics.terms.chamber import SERIES_EXPONENT_LIMIT, polytropic_ratio, series_terms
 
     assert series_terms(span) is not None
     logs = jnp.asarray(np.random.default_rng(3).uniform(-span, span, 2000))
@@ -233,7 +233,7 @@ def test_polytropic_series_equals_exp_with_its_derivatives(span):
 
 
 def test_polytropic_series_is_nan_outside_its_bounds_and_exp_beyond_its_terms():
-    from fitstiff.terms.chamber import SERIES_EXPONENT_LIMIT, polytropic_ratio, series_terms
+    from fitstiff.physics.terms.chamber import SERIES_EXPONENT_LIMIT, polytropic_ratio, series_terms
 
     span = 2.0**-8
     logs = jnp.linspace(-span, span, 101)
@@ -251,7 +251,7 @@ def test_polytropic_series_is_nan_outside_its_bounds_and_exp_beyond_its_terms():
 def test_log_volume_span_of_a_hand_made_drive():
     import math
 
-    from fitstiff.drive import log_volume_span
+    from fitstiff.physics.drive import log_volume_span
 
     x = np.array([0.0, -1e-3, 4e-3, 2e-3])          # from the first sample
     true = max(math.log(0.104 / 0.1), math.log(0.2 / 0.196))
@@ -265,7 +265,7 @@ def test_log_volume_span_of_a_hand_made_drive():
 
 
 def test_stacked_drives_share_the_widest_span():
-    from fitstiff.problem import _same_closed_forms
+    from fitstiff.inference.problem import _same_closed_forms
 
     t, x = triangle([1e-3])
     drive = make_drive(displacement=x, time=t)
@@ -281,8 +281,8 @@ def test_stacked_drives_share_the_widest_span():
 def test_drive_log_volume_ratios_follow_its_displacement(paper_rig):
     """A drive's cached log volume ratios are the chamber's logs of its displacement, padded
     with it; a moved drive drops them and the chamber follows the new displacement."""
-    from fitstiff.problem import _pad_drive
-    from fitstiff.terms.chamber import Chamber
+    from fitstiff.inference.problem import _pad_drive
+    from fitstiff.physics.terms.chamber import Chamber
 
     t, x = triangle([1e-3, 2e-3])
     drive = make_drive(displacement=x, time=t, rig=paper_rig, needs_chamber=True)
@@ -312,8 +312,8 @@ def test_turning_point_columns_see_the_chamber_through_the_moved_drive():
     """The turning points' columns (a Jacobian in the displacement) are the same with the
     drive's cached ratios as without them: the cache never stands for a moved displacement."""
     from fitstiff._testing.speed import make_log
-    from fitstiff.likelihood import Layout, TurningPoints
-    from fitstiff.problem import Problem
+    from fitstiff.inference.likelihood import Layout, TurningPoints
+    from fitstiff.inference.problem import Problem
 
     problem = Problem([make_log().slice(0, 1500)], "chamber+dahl")
     theta = jnp.asarray(problem.pack(problem.model))
@@ -332,8 +332,8 @@ def test_the_benchmark_log_takes_the_series():
     """The chamber of a pre-sliding log's problem (denoised drive) evaluates its powers as a
     series (``benchmarks/posterior_speed.py``)."""
     from fitstiff._testing.speed import make_log
-    from fitstiff.problem import Problem
-    from fitstiff.terms.chamber import series_terms
+    from fitstiff.inference.problem import Problem
+    from fitstiff.physics.terms.chamber import series_terms
 
     problem = Problem([make_log()], "chamber+dahl")
     span = problem._groups[0].drive.log_volume_span
@@ -341,7 +341,7 @@ def test_the_benchmark_log_takes_the_series():
 
 # -- Dahl over monotone runs -------------------------------------------------------------------
 def stepped_dahl(term, drive, steps):
-    from fitstiff.terms import Modulation
+    from fitstiff.physics.terms import Modulation
 
     def body(state, s):
         return term.step(state, s, drive, Modulation())
@@ -362,7 +362,7 @@ def plateaued_triangle():
 @pytest.mark.parametrize("noisy", [False, True])
 @pytest.mark.parametrize("state0", [0.0, -0.7])
 def test_dahl_over_monotone_runs_equals_stepping(noisy, state0):
-    from fitstiff.runs import count_runs
+    from fitstiff.signal.monotone import count_runs
 
     t, x, x_noisy = plateaued_triangle()
     x = x_noisy if noisy else x
@@ -424,7 +424,7 @@ def test_dahl_is_stepped_where_runs_do_not_pay():
 
 
 def test_runs_of_a_hand_made_displacement():
-    from fitstiff.runs import count_runs, find_runs, pad_runs
+    from fitstiff.signal.monotone import count_runs, find_runs, pad_runs
 
     x = np.repeat([0.0, 0.0, 1.0, 2.0, 2.0, 1.0, 1.0, 0.0, 0.5, 0.5], 2)
     assert count_runs(x) == 3
@@ -526,7 +526,7 @@ def test_asymmetry_gives_direction_dependent_level():
 
 
 def test_pressure_friction_rises_with_pressure():
-    from fitstiff.log import Rig
+    from fitstiff.io.log import Rig
 
     t, x = polyline([0.0, 10e-3], fs=200)
     levels = {}
@@ -701,7 +701,7 @@ def test_an_ordered_vector_is_checked_once_all_its_elements_are_set():
     held-out fits of ``--compare`` set a Maxwell-slip fit's [1.4, 39, 52, 77] um into a model
     holding [180, 360, 540, 720] um one name at a time and failed on the way (issue 17, the
     O-ring logs). Only the final vector must be increasing."""
-    from fitstiff.params import Parameterization
+    from fitstiff.physics.params import Parameterization
 
     model = build_model("maxwell_slip:4")
     par = Parameterization(model)
@@ -728,7 +728,7 @@ def test_a_models_spec_builds_the_same_structure_again(spec):
 def test_a_maxwell_slip_fit_of_six_elements_is_reported(tmp_path):
     # the run directory's model is rebuilt from fit.json's spec: it must keep the elements
     from fitstiff.cli import main
-    from fitstiff.report import write_report
+    from fitstiff.present.report import write_report
 
     log = Path(__file__).resolve().parents[1] / "data/synthetic/fig4/p2bar_x350mm.csv"
     assert main(["fit", str(log), "--model", "chamber+maxwell_slip:6", "--out",
@@ -738,7 +738,7 @@ def test_a_maxwell_slip_fit_of_six_elements_is_reported(tmp_path):
 
 
 def test_pressure_friction_reference_can_be_set_and_is_kept_in_the_spec():
-    from fitstiff.log import Rig
+    from fitstiff.io.log import Rig
 
     rig = Rig.from_mapping({"bore_mm": 32, "stroke_mm": 700, "start_position_mm": 350,
                             "supply_bar": 6.0})

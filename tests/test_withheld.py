@@ -13,9 +13,9 @@ import pytest
 from benchmarks import withheld as wh
 from fitstiff._testing import rig_sim as rs
 from fitstiff._testing import withheld as datasets
-from fitstiff.log import Rig
-from fitstiff.programs import TriangleCycles
-from fitstiff.simulate import Noise, simulate
+from fitstiff.io.log import Rig
+from fitstiff.physics.programs import TriangleCycles
+from fitstiff.physics.simulate import Noise, simulate
 
 QUIET = Noise(force_N=0, displacement_um=0, pressure_mbar=0)
 

@@ -11,9 +11,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from fitstiff.log import Rig
-from fitstiff.programs import TriangleCycles
-from fitstiff.simulate import Noise, simulate
+from fitstiff.io.log import Rig
+from fitstiff.physics.programs import TriangleCycles
+from fitstiff.physics.simulate import Noise, simulate
 
 LOGS = ((2.0, 1.0), (6.0, 5.0))          # (supply bar, rate mm/s)
 AMPLITUDES_MM = (0.05, 0.2, 0.5, 1.0)

@@ -40,7 +40,7 @@ def _program(samples: int, rate_hz: float) -> rs.Program:
 
 
 def _write_unit(job) -> None:
-    from fitstiff.simulate import write_log
+    from fitstiff.physics.simulate import write_log
 
     folder, sigma0, fc, seed, samples, rate_hz, noise_n = job
     rng = np.random.default_rng(seed)

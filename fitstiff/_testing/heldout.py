@@ -2,8 +2,8 @@
 checked against (issue 31).
 
 Nothing here shares code with :mod:`fitstiff.diagnosis`: no super-model, no masks, no fold
-starts. Leave one log out is :func:`fitstiff.comparison.held_out_rms` (``fit`` on the other
-logs; the left-out log predicted with the model held and only its own nuisances fitted).
+starts. Leave one log out is :func:`fitstiff.inference.comparison.held_out_rms` (``fit`` on the
+other logs; the left-out log predicted with the model held and only its own nuisances fitted).
 Leave one block out is ``fit`` of the one log with the block excluded (``exclude=``), the
 block predicted by the fitted model; the block that starts the log has its initial friction
 state fitted to it (the model and the trained offset held), as a left-out log has.
@@ -18,10 +18,10 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from fitstiff.comparison import held_out_rms
-from fitstiff.fitting import fit
-from fitstiff.log import Log
-from fitstiff.params import named_params
+from fitstiff.inference.comparison import held_out_rms
+from fitstiff.inference.fitting import fit
+from fitstiff.io.log import Log
+from fitstiff.physics.params import named_params
 
 __all__ = ["leave_one_log_out", "leave_one_block_out", "blocks_of", "pooled"]
 

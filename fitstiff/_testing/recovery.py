@@ -10,9 +10,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from fitstiff.log import Rig
-from fitstiff.programs import TriangleCycles
-from fitstiff.simulate import Noise, simulate
+from fitstiff.io.log import Rig
+from fitstiff.physics.programs import TriangleCycles
+from fitstiff.physics.simulate import Noise, simulate
 
 AMPLITUDES_MM = (0.05, 0.1, 0.2, 0.5, 1.0)
 LOGS = ((0.0, 0.2), (2.0, 1.0), (4.0, 5.0), (6.0, 20.0))   # (supply bar, rate mm/s)

@@ -2,8 +2,8 @@
 
 The data of the withheld-effect benchmark (:mod:`fitstiff._testing.withheld`, run by
 ``benchmarks/withheld.py``) must not come from the code path the fit uses: this module shares
-no physics code with :mod:`fitstiff` (it only builds :class:`fitstiff.log.Log` objects at the
-end). It differs from :func:`fitstiff.simulate.simulate` on purpose:
+no physics code with :mod:`fitstiff` (it only builds :class:`fitstiff.io.log.Log` objects at the
+end). It differs from :func:`fitstiff.physics.simulate.simulate` on purpose:
 
 - the displacement program is rendered on a grid ``substeps`` (default 15) times finer than
   the logged samples, its corners rounded by a short Hann smoothing (finite accelerations, as
@@ -59,7 +59,7 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from fitstiff.log import Log, Rig
+from fitstiff.io.log import Log, Rig
 
 __all__ = ["Segment", "Program", "Base", "SensorNoise", "render", "simulate_log",
            "leg", "pause", "sweep", "BORE", "STROKE"]

@@ -9,10 +9,10 @@ import math
 
 import numpy as np
 
-from fitstiff.log import Log, Rig
-from fitstiff.problem import Problem
-from fitstiff.programs import TriangleCycles
-from fitstiff.simulate import Noise, simulate
+from fitstiff.inference.problem import Problem
+from fitstiff.io.log import Log, Rig
+from fitstiff.physics.programs import TriangleCycles
+from fitstiff.physics.simulate import Noise, simulate
 
 RIG = Rig.from_mapping({"bore_mm": 32, "stroke_mm": 700, "start_position_mm": 350,
                         "supply_bar": 6})

@@ -161,7 +161,7 @@ def main(argv: list[str] | None = None) -> int:
                              f"{stop.kept or 'its unfinished outputs were discarded'}\n")
             return stop.exit_code
         except OSError as exc:
-            from fitstiff.output import NO_ROOM
+            from fitstiff.io.output import NO_ROOM
 
             if exc.errno not in NO_ROOM:
                 raise

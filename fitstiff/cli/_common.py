@@ -17,11 +17,11 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from fitstiff.columns import CHAMBERS, ENTRY_FORM, bundled_formats
-from fitstiff.loading import load_logs
-from fitstiff.log import RIG_KEYS, Log
-from fitstiff.output import LOG_SUFFIXES
-from fitstiff.validation import cli_number
+from fitstiff.io.columns import CHAMBERS, ENTRY_FORM, bundled_formats
+from fitstiff.io.loading import load_logs
+from fitstiff.io.log import RIG_KEYS, Log
+from fitstiff.io.output import LOG_SUFFIXES
+from fitstiff.io.validation import cli_number
 
 __all__ = ["add_log_arguments", "add_out_argument", "add_reading_arguments", "directory", "input_files", "input_paths",
            "logs_from_args", "model_spec", "reading_options"]
@@ -104,7 +104,7 @@ def logs_from_args(args: argparse.Namespace) -> list[Log]:
 
 
 def reading_options(args: argparse.Namespace) -> dict[str, object]:
-    """Keyword arguments of :func:`~fitstiff.loading.load_logs` given by the options (for a
+    """Keyword arguments of :func:`~fitstiff.io.loading.load_logs` given by the options (for a
     manifest, so a report can read the logs again the same way)."""
     overrides: dict[str, object] = {k.key: getattr(args, k.key) for k in RIG_KEYS
                                     if getattr(args, k.key) is not None}

@@ -15,9 +15,9 @@ from fitstiff.cli._common import add_out_argument
 from fitstiff.cli.fit import FIT
 from fitstiff.cli.posterior import PLANNED
 from fitstiff.data import fig4_logs
-from fitstiff.output import OutputDir
-from fitstiff.report import PLANNED as REPORT_PLANNED
-from fitstiff.report import REPORT, REPORT_MANIFEST, write_report
+from fitstiff.io.output import OutputDir
+from fitstiff.present.report import PLANNED as REPORT_PLANNED
+from fitstiff.present.report import REPORT, REPORT_MANIFEST, write_report
 
 __all__ = ["add_parser", "run", "MODEL", "CHAINS"]
 

@@ -9,12 +9,12 @@ import json
 
 import numpy as np
 
-from fitstiff.cli._common import (add_log_arguments, add_out_argument, input_paths,
-                                  logs_from_args, model_spec, reading_options)
+from fitstiff.cli._common import (add_log_arguments, add_out_argument, input_paths, logs_from_args,
+                                  model_spec, reading_options)
 from fitstiff.cli.fit import add_data_arguments, problem_options
 from fitstiff.diagnosis import ALPHA, HELDOUT, MIN_SHRINK, RESULT, diagnose
 from fitstiff.diagnosis.supermodel import CANDIDATES
-from fitstiff.output import OutputDir, to_jsonable
+from fitstiff.io.output import OutputDir, to_jsonable
 
 __all__ = ["add_parser", "run"]
 

@@ -4,21 +4,19 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 
-from fitstiff.cli._common import (add_log_arguments, add_out_argument, input_paths,
-                                  logs_from_args, model_spec, reading_options)
-from fitstiff.comparison import compare
+from fitstiff.cli._common import (add_log_arguments, add_out_argument, input_paths, logs_from_args,
+                                  model_spec, reading_options)
 from fitstiff.errors import InputError
-from fitstiff.fitting import SOLVERS, fit
-from fitstiff.model import build_model
-from fitstiff.output import OutputDir, to_jsonable
-from fitstiff.params import find_param, named_params
-from fitstiff.problem import OPTIONAL_NUISANCES
-from fitstiff.segmentation import REGIONS
-from fitstiff.validation import parse_decimal
+from fitstiff.inference.comparison import compare
+from fitstiff.inference.fitting import SOLVERS, fit
+from fitstiff.inference.problem import OPTIONAL_NUISANCES
+from fitstiff.io.output import OutputDir, to_jsonable
+from fitstiff.io.validation import parse_decimal
+from fitstiff.physics.model import parse_fix
+from fitstiff.segments.segmentation import REGIONS
 
-__all__ = ["add_parser", "run", "parse_fix", "fit_options", "add_data_arguments",
+__all__ = ["add_parser", "run", "fit_options", "add_data_arguments",
            "problem_options", "FIT", "COMPARE"]
 
 FIT = "fit.json"
@@ -71,32 +69,6 @@ def add_fit_arguments(parser: argparse.ArgumentParser) -> None:
     add_data_arguments(group)
 
 
-def parse_fix(items, spec: str) -> dict[str, float | None]:
-    """``["n=1.4", "offset"]`` -> ``{"n": 1.4, "offset": None}`` (SI; None: hold the start
-    value)."""
-    model = build_model(spec)
-    values: dict[str, float | None] = {}
-    for item in items:
-        name, sep, value = item.partition("=")
-        if not sep:
-            values[name] = None
-            continue
-        number = parse_decimal(value)
-        if number is None or not math.isfinite(number):
-            raise InputError(None, f"--fix {item}", f"value {value!r} is not a number",
-                             "write NAME=VALUE in the parameter's display unit, as a plain "
-                             "finite decimal") from None
-        try:
-            param = find_param(model, name)
-        except KeyError:
-            names = [n for _, _, flat in named_params(model) for n in flat]
-            raise InputError(None, f"--fix {item}", f"'{name}' is not a parameter of "
-                             f"'{spec}'", f"use one of: {', '.join(names)} (NAME=VALUE), or "
-                             "offset, friction_state0 (held at their start)") from None
-        values[name] = param.to_si(number)
-    return values
-
-
 def _range(text):
     if not text:
         return None
@@ -126,7 +98,8 @@ def _weights(items):
 
 
 def add_data_arguments(group) -> None:
-    """Options that choose and prepare the data of a :class:`~fitstiff.problem.Problem`."""
+    """Options that choose and prepare the data of a
+    :class:`~fitstiff.inference.problem.Problem`."""
     group.add_argument("--denoise", choices=("auto", "on", "off"), default="auto",
                        help="reversal-preserving displacement denoising (default: auto, when "
                             "the displacement noise is above 0.05 um)")
@@ -139,7 +112,7 @@ def add_data_arguments(group) -> None:
 
 
 def problem_options(args) -> dict[str, object]:
-    """Keyword arguments of :class:`~fitstiff.problem.Problem` given by
+    """Keyword arguments of :class:`~fitstiff.inference.problem.Problem` given by
     :func:`add_data_arguments`."""
     return {"denoise": {"auto": "auto", "on": True, "off": False}[args.denoise],
             "sample_range": _range(args.range), "skip": args.skip,
@@ -147,7 +120,7 @@ def problem_options(args) -> dict[str, object]:
 
 
 def fit_options(args) -> dict[str, object]:
-    """Keyword arguments of :func:`fitstiff.fitting.fit` from the parsed options."""
+    """Keyword arguments of :func:`fitstiff.inference.fitting.fit` from the parsed options."""
     for flag, value, least in (("--max-steps", args.max_steps, 1), ("--skip", args.skip, 0)):
         if value < least:
             raise InputError(None, f"{flag} {value}", f"must be at least {least}",

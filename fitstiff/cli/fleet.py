@@ -8,9 +8,10 @@ import sys
 from pathlib import Path
 
 from fitstiff.cli._common import add_out_argument, add_reading_arguments, reading_options
-from fitstiff.cli.fit import add_fit_arguments, fit_options, parse_fix
+from fitstiff.cli.fit import add_fit_arguments, fit_options
 from fitstiff.errors import InputError
-from fitstiff.output import OutputDir
+from fitstiff.io.output import OutputDir
+from fitstiff.physics.model import parse_fix
 
 __all__ = ["add_parser", "run"]
 

@@ -1,7 +1,7 @@
 """``fitstiff inspect LOGS...``: what is in each log, before fitting anything.
 
-A thin layer over :func:`fitstiff.inspection.inspect_log` and
-:func:`fitstiff.segmentation.segment`: readable text per log, or ``--json`` (one object
+A thin layer over :func:`fitstiff.segments.inspection.inspect_log` and
+:func:`fitstiff.segments.segmentation.segment`: readable text per log, or ``--json`` (one object
 ``{"logs": [summary, ...]}``); ``--out DIR`` also writes it as ``inspect.json`` with a
 manifest.
 """
@@ -13,10 +13,10 @@ import contextlib
 import json
 
 from fitstiff.cli._common import add_log_arguments, directory, input_paths, logs_from_args
-from fitstiff.inspection import format_summary, inspect_log
-from fitstiff.output import OutputDir, to_jsonable
-from fitstiff.segmentation import DEFAULT_MIN_PAUSE, DEFAULT_PRESLIDING_RANGE, segment
-from fitstiff.validation import cli_number
+from fitstiff.io.output import OutputDir, to_jsonable
+from fitstiff.io.validation import cli_number
+from fitstiff.segments.inspection import format_summary, inspect_log
+from fitstiff.segments.segmentation import DEFAULT_MIN_PAUSE, DEFAULT_PRESLIDING_RANGE, segment
 
 __all__ = ["add_parser", "run", "INSPECT"]
 

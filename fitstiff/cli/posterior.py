@@ -4,7 +4,7 @@ Writes into ``--out``: ``posterior.json`` (DESIGN §5), ``chain.h5`` (the emcee 
 ``posterior.nc`` (ArviZ InferenceData), ``predictive.npz`` (model-force draws for the report)
 and ``manifest.json``. While sampling, the chain grows in ``.chain.h5.partial.h5``; an interrupted
 or failed run keeps it (and nothing else), and ``--resume`` continues from its last step.
-``--out`` is claimed and locked before anything is loaded (:class:`fitstiff.output.OutputDir`).
+``--out`` is claimed and locked before anything is loaded (:class:`fitstiff.io.output.OutputDir`).
 """
 
 from __future__ import annotations
@@ -17,28 +17,17 @@ from signal import SIGINT
 
 import numpy as np
 
-from fitstiff.cli._common import (
-    add_log_arguments,
-    add_out_argument,
-    input_paths,
-    logs_from_args,
-    reading_options,
-)
 from fitstiff._interrupts import Interrupted, pending
-from fitstiff.cli.fit import add_fit_arguments, fit_options, parse_fix
+from fitstiff.cli._common import (add_log_arguments, add_out_argument, input_paths, logs_from_args,
+                                  reading_options)
+from fitstiff.cli.fit import add_fit_arguments, fit_options
 from fitstiff.errors import InputError
-from fitstiff.likelihood import NOISE_MODELS
-from fitstiff.output import NO_ROOM, OutputDir, ensure_room, to_jsonable
-from fitstiff.posterior import (
-    CHAIN,
-    DEFAULT_MOVES,
-    DEFAULT_NOISE_MODEL,
-    INFERENCE_DATA,
-    MOVES,
-    PREDICTIVE,
-    sample_posterior,
-)
-from fitstiff.validation import cli_number
+from fitstiff.inference.likelihood import NOISE_MODELS
+from fitstiff.inference.posterior import (CHAIN, DEFAULT_MOVES, DEFAULT_NOISE_MODEL, INFERENCE_DATA,
+                                          MOVES, PREDICTIVE, sample_posterior)
+from fitstiff.io.output import NO_ROOM, OutputDir, ensure_room, to_jsonable
+from fitstiff.io.validation import cli_number
+from fitstiff.physics.model import parse_fix
 
 __all__ = ["add_parser", "run", "POSTERIOR", "PLANNED"]
 

@@ -6,7 +6,7 @@ import argparse
 
 from fitstiff.cli._common import directory
 from fitstiff.errors import InputError
-from fitstiff.report import FIGURES, REPORT, REPORT_MANIFEST, RESULT_FILES, write_report
+from fitstiff.present.report import FIGURES, REPORT, REPORT_MANIFEST, RESULT_FILES, write_report
 
 __all__ = ["add_parser", "run"]
 
@@ -42,7 +42,7 @@ def run(args) -> int:
     if args.run is not None and args.cylinder is None:
         raise InputError(None, "--run", "needs --cylinder", "name the cylinder too")
     if args.cylinder is not None:
-        from fitstiff.fleet.page import cylinder_report
+        from fitstiff.present.fleet_page import cylinder_report
 
         if args.out is not None:
             raise InputError(None, "--out with --cylinder", "the cylinder's report goes "

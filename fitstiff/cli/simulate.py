@@ -1,8 +1,8 @@
 """``fitstiff simulate``: a synthetic log from a model spec, a displacement program and noise.
 
-A thin layer over :func:`fitstiff.simulate.simulate`: writes ``<name>.csv`` (canonical columns),
-the sidecar ``<name>.json`` (rig keys; ``supply_bar`` makes the chambers closed on reload),
-``<name>.truth.json`` (every parameter, the noise, the seed, the program, the derived
+A thin layer over :func:`fitstiff.physics.simulate.simulate`: writes ``<name>.csv`` (canonical
+columns), the sidecar ``<name>.json`` (rig keys; ``supply_bar`` makes the chambers closed on
+reload), ``<name>.truth.json`` (every parameter, the noise, the seed, the program, the derived
 quantities and the noise-free force) and ``manifest.json`` to ``--out DIR``.
 
 Example (the paper's cylinder, Fig. 4-style triangle cycles)::
@@ -18,11 +18,11 @@ import re
 
 from fitstiff.cli._common import add_out_argument, model_spec
 from fitstiff.errors import InputError
-from fitstiff.log import RIG_KEYS, Rig
-from fitstiff.output import OutputDir
-from fitstiff.programs import (PAUSE_AT, NestedLoops, Pause, Program, Ramp, SineSweep,
-                               TriangleCycles)
-from fitstiff.simulate import DEFAULT_RATE_HZ, Noise, format_log, simulate
+from fitstiff.io.log import RIG_KEYS, Rig
+from fitstiff.io.output import OutputDir
+from fitstiff.physics.programs import (PAUSE_AT, NestedLoops, Pause, Program, Ramp, SineSweep,
+                                       TriangleCycles)
+from fitstiff.physics.simulate import DEFAULT_RATE_HZ, Noise, format_log, simulate
 
 __all__ = ["add_parser", "run", "PROGRAMS"]
 

@@ -1,8 +1,9 @@
 """``fitstiff stiffness``: chamber gas-spring stiffness and restoring force from geometry.
 
-A thin layer over :mod:`fitstiff.stiffness`: flags in engineering units (mm, bar gauge),
+A thin layer over :mod:`fitstiff.physics.stiffness`: flags in engineering units (mm, bar gauge),
 a readable aligned text output, or ``--json`` with the keys of
-:data:`fitstiff.stiffness.JSON_KEYS` (one object; with ``--table``, ``{"table": [objects]}``).
+:data:`fitstiff.physics.stiffness.JSON_KEYS` (one object; with ``--table``,
+``{"table": [objects]}``).
 """
 
 from __future__ import annotations
@@ -12,18 +13,18 @@ import contextlib
 import json
 
 from fitstiff.cli._common import directory
-from fitstiff.log import RIG_KEYS, Rig
-from fitstiff.output import OutputDir, to_jsonable
-from fitstiff.stiffness import (ADIABATIC_AIR, BAR, JSON_KEYS, MM, StiffnessResult,
-                                chamber_stiffness, stiffness_table)
-from fitstiff.validation import cli_number, number
+from fitstiff.io.log import RIG_KEYS, Rig
+from fitstiff.io.output import OutputDir, to_jsonable
+from fitstiff.io.validation import cli_number, number
+from fitstiff.physics.stiffness import (ADIABATIC_AIR, BAR, JSON_KEYS, MM, StiffnessResult,
+                                        chamber_stiffness, stiffness_table)
 
 __all__ = ["add_parser", "run"]
 
 DEFAULT_TABLE_ROWS = 7
 DEFAULT_DISPLACEMENT_MM = 0.5
 
-# rig-metadata keys whose flags (fitstiff.log.RIG_KEYS) this command takes -> help suffix
+# rig-metadata keys whose flags (fitstiff.io.log.RIG_KEYS) this command takes -> help suffix
 _RIG_FLAGS = {
     "bore_mm": " (required)",
     "rod_mm": " (default 0)",

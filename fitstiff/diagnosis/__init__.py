@@ -1,6 +1,6 @@
 """The sim-to-real gap diagnosis (DESIGN §6): :func:`diagnose` -> :class:`Diagnosis`.
 
-Modules, one concept each (with :mod:`fitstiff.noise`, the noise floor from the data
+Modules, one concept each (with :mod:`fitstiff.signal.noise`, the noise floor from the data
 alone): :mod:`~fitstiff.diagnosis.supermodel` (the baseline and every candidate as one
 compiled model with run-time masks), :mod:`~fitstiff.diagnosis.gap` (where: held-out residuals
 by region), :mod:`~fitstiff.diagnosis.screen` (which: score statistics and detectability),

@@ -4,7 +4,7 @@ The steps (DESIGN §6):
 
 1. build the baseline and every candidate as one compiled super-model
    (:class:`~fitstiff.diagnosis.supermodel.SuperProblem`), fit the baseline, estimate each
-   log's noise floor from the data alone (:func:`~fitstiff.noise.noise_floor`);
+   log's noise floor from the data alone (:func:`~fitstiff.signal.noise.noise_floor`);
 2. **where**: the baseline's held-out residuals per cell (:mod:`fitstiff.diagnosis.gap`);
 3. **which**: score statistics of every candidate at its null
    (:mod:`fitstiff.diagnosis.screen`), then held-out refits of the promising ones;
@@ -25,17 +25,17 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from fitstiff.comparison import TIE
 from fitstiff.diagnosis.gap import above_floor, pooled_excess, region_table
-from fitstiff.noise import noise_floor
 from fitstiff.diagnosis.result import Candidate, Diagnosis
 from fitstiff.diagnosis.screen import Score, collinear_groups, screen
 from fitstiff.diagnosis.select import FoldFit, HeldOut, fold_starts, folds_for, held_out
 from fitstiff.diagnosis.supermodel import SuperProblem, candidate_names
 from fitstiff.errors import InputError
-from fitstiff.log import Log
-from fitstiff.params import to_display
-from fitstiff.terms import TERMS
+from fitstiff.inference.comparison import TIE
+from fitstiff.io.log import Log
+from fitstiff.physics.params import to_display
+from fitstiff.physics.terms import TERMS
+from fitstiff.signal.noise import noise_floor
 
 __all__ = ["diagnose", "ALPHA", "MIN_GAIN", "MIN_SHRINK"]
 
@@ -73,7 +73,7 @@ def diagnose(logs: Sequence[Log], *, baseline: str = "chamber+dahl",
             effect names (a list or a comma-separated string).
         alpha: family-wise level of the score screen.
         min_shrink: share of the gap above the noise that an accepted effect must remove.
-        problem_kw: options of :class:`~fitstiff.problem.Problem` (``denoise``,
+        problem_kw: options of :class:`~fitstiff.inference.problem.Problem` (``denoise``,
             ``sample_range``, ``weights``, ``skip``).
 
     Returns:

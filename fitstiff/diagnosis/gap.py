@@ -1,10 +1,10 @@
 """Where the model misses: held-out residuals by region, log, pressure, direction and speed.
 
-Cells are the segmentation's tags (:meth:`~fitstiff.segmentation.Segmentation.to_frame`):
+Cells are the segmentation's tags (:meth:`~fitstiff.segments.segmentation.Segmentation.to_frame`):
 motion region (presliding, sliding, dwell, standstill) x log x pressure level x direction x
 speed band, plus a ``stroke_end`` cell per log and direction. Each cell gets its bias, RMS,
 share of the squared error and two z-scores against the log's noise floor (``sigma``, AR(1)
-``rho`` from :func:`~fitstiff.noise.noise_floor`), with effective sample sizes for
+``rho`` from :func:`~fitstiff.signal.noise.noise_floor`), with effective sample sizes for
 correlated noise:
 
     z_bias = bias / (sigma / sqrt(n (1 - rho) / (1 + rho)))
@@ -22,8 +22,8 @@ from collections.abc import Sequence
 import numpy as np
 import pandas as pd
 
-from fitstiff.noise import NoiseFloor
-from fitstiff.segmentation import Segmentation
+from fitstiff.segments.segmentation import Segmentation
+from fitstiff.signal.noise import NoiseFloor
 
 __all__ = ["region_table", "region_summary", "above_floor", "pooled_excess", "Z_ABOVE", "EXCESS_ABOVE"]
 

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import dataclasses
-import math
 from collections.abc import Mapping
 
 import numpy as np
@@ -37,7 +36,7 @@ class Candidate:
     #: are theirs together), when none passed alone; empty otherwise
     together: tuple[str, ...] = ()
     #: what the fitted values refer to where the units do not say it
-    #: (:meth:`fitstiff.terms.base.Term.reading`: pressure_friction's reference pressure and
+    #: (:meth:`fitstiff.physics.terms.base.Term.reading`: pressure_friction's reference pressure and
     #: per-bar basis), for accepted effects
     reading: str = ""
 

@@ -37,9 +37,9 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 from scipy import stats
 
-from fitstiff.noise import NoiseFloor, noise_floor
 from fitstiff.diagnosis.supermodel import SuperProblem
-from fitstiff.params import Param
+from fitstiff.physics.params import Param
+from fitstiff.signal.noise import NoiseFloor, noise_floor
 
 __all__ = ["Score", "screen", "collinear_groups", "SHAPE_GRIDS", "POWER", "COLLINEAR_TIE"]
 

@@ -82,7 +82,7 @@ class Fold:
 
     def seen(self, n_samples: Sequence[int]) -> list[np.ndarray | None]:
         """Per log, the samples the training part holds (``None``: the left-out log), for
-        :func:`~fitstiff.fitting.initial_guess`."""
+        :func:`~fitstiff.inference.fitting.initial_guess`."""
         out: list[np.ndarray | None] = [np.ones(n, dtype=bool) for n in n_samples]
         if self.log is not None:
             out[self.log] = None

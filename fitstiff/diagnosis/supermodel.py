@@ -3,7 +3,7 @@
 Every candidate nests the baseline at a null value of its parameters (viscous ``c = 0``,
 Stribeck ratio 1, Maxwell-slip stiffnesses 0, the chamber's ``gate`` 0 for ``chamber:gated``),
 so the baseline, the baseline with any set of candidates and the full model are one
-:class:`~fitstiff.problem.Problem` whose free parameters are chosen by masks given at run
+:class:`~fitstiff.inference.problem.Problem` whose free parameters are chosen by masks given at run
 time. Screens (score statistics) and refits (least squares on training folds, held-out
 predictions) all call the same compiled functions:
 
@@ -32,14 +32,14 @@ import numpy as np
 
 from fitstiff._jax import jax, jnp
 from fitstiff.errors import InputError
-from fitstiff.fitting import initial_guess
-from fitstiff.lm import CONVERGED, levenberg_marquardt
-from fitstiff.log import Log
-from fitstiff.model import parse_spec
-from fitstiff.problem import Problem
-from fitstiff.terms import EFFECTS, FRICTION_BASES, TERMS
-from fitstiff.terms.base import Modifier, SeriesTerm
-from fitstiff.terms.chamber import Chamber
+from fitstiff.inference.fitting import initial_guess
+from fitstiff.inference.lm import CONVERGED, levenberg_marquardt
+from fitstiff.inference.problem import Problem
+from fitstiff.io.log import Log
+from fitstiff.physics.model import parse_spec
+from fitstiff.physics.terms import EFFECTS, FRICTION_BASES, TERMS
+from fitstiff.physics.terms.base import Modifier, SeriesTerm
+from fitstiff.physics.terms.chamber import Chamber
 
 __all__ = ["CANDIDATES", "SuperProblem", "candidate_names", "spec_token"]
 
@@ -166,13 +166,14 @@ class Owner:
 
 
 class SuperProblem:
-    """The baseline and all candidates as one :class:`~fitstiff.problem.Problem`.
+    """The baseline and all candidates as one :class:`~fitstiff.inference.problem.Problem`.
 
     Args:
         logs: the logs.
         baseline: the baseline spec (``"chamber+dahl"``).
         candidates: effect names (:func:`candidate_names`).
-        problem_kw: options of :class:`~fitstiff.problem.Problem` (denoise, sample_range, ...).
+        problem_kw: options of :class:`~fitstiff.inference.problem.Problem` (denoise, sample_range,
+        ...).
     """
 
     def __init__(self, logs: Sequence[Log], baseline: str, candidates: Sequence[str],
@@ -267,7 +268,7 @@ class SuperProblem:
         """``(theta, hold)``: the data-driven start of the baseline, candidates at their null
         (shape parameters at their defaults) and ``values`` (SI, by flat name) on top;
         ``samples``: what may inform it (a fold's training part, see
-        :func:`~fitstiff.fitting.initial_guess`)."""
+        :func:`~fitstiff.inference.fitting.initial_guess`)."""
         model0, nuis0 = initial_guess(self.problem, bases=self.baseline_terms, samples=samples)
         theta = np.array(self.problem.pack(model0, nuis0), dtype=float)
         hold = np.array(self.problem.par.physical(jnp.asarray(theta[:self.n_model])))

@@ -34,7 +34,7 @@ from fitstiff.errors import InputError
 from fitstiff.fleet.population import DEFAULT_Q, population
 from fitstiff.fleet.source import Unit, discover, input_hash
 from fitstiff.fleet.work import BASE_COLUMNS, Settings, fit_units
-from fitstiff.output import write_atomic
+from fitstiff.io.output import write_atomic
 
 __all__ = ["fit_fleet", "WORKER_ENV", "CACHE_DIR", "FIT_OPTIONS", "default_workers"]
 
@@ -141,7 +141,7 @@ def fit_fleet(source: str | os.PathLike | Sequence[Unit], *, model: str = "chamb
             ``cylinder``, ``run``, ``file``), or units from :func:`~fitstiff.fleet.discover`.
         model, fix: as for :func:`fitstiff.fit`; ``fit_options`` too (solver, max_steps,
             denoise, sample_range, weights, skip, free).
-        reading: options of :func:`fitstiff.loading.load_logs` (columns, fmt,
+        reading: options of :func:`fitstiff.io.loading.load_logs` (columns, fmt,
             rig_overrides, ...).
         workers: local worker processes (default: one per core; 1: in this process).
         scheduler: the address of an existing Dask scheduler (then ``workers`` is unused).

@@ -25,7 +25,7 @@ from pathlib import Path
 import pandas as pd
 
 from fitstiff.errors import InputError
-from fitstiff.output import LOG_SUFFIXES
+from fitstiff.io.output import LOG_SUFFIXES
 
 __all__ = ["Unit", "discover", "MANIFEST_COLUMNS", "input_hash"]
 

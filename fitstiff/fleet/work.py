@@ -6,12 +6,12 @@ worker, in a Dask worker otherwise) and returns plain rows (dicts), the columns 
 its standard error). Every unit becomes a row: a unit whose logs cannot be read or fitted has
 its one-line message in ``error`` and the rest of the chunk goes on.
 
-Each unit is fitted by :func:`fitstiff.fitting.fit_problem` as ``fitstiff fit`` would
-(one start), or, with ``lanes > 1``, by :func:`fitstiff.fitting.fit_problems`: the solves of
-``lanes`` units of one structure as one ``vmap``-ed call, the GPU's way (on CPUs one unit per
+Each unit is fitted by :func:`fitstiff.inference.fitting.fit_problem` as ``fitstiff fit`` would
+(one start), or, with ``lanes > 1``, by :func:`fitstiff.inference.fitting.fit_problems`: the solves
+of ``lanes`` units of one structure as one ``vmap``-ed call, the GPU's way (on CPUs one unit per
 core is faster: ``benchmarks/fleet.py``). Either way a worker compiles once per structure, not
-per unit (:meth:`fitstiff.problem.Problem.compiled`), and a unit's estimates do not depend on
-the chunk it came in.
+per unit (:meth:`fitstiff.inference.problem.Problem.compiled`), and a unit's estimates do not depend
+on the chunk it came in.
 """
 
 from __future__ import annotations
@@ -39,9 +39,9 @@ class Settings:
         model: the model spec.
         fix: parameters held (SI values, or ``None``: the model's), as for
             :func:`fitstiff.fit`.
-        fit: options of :func:`fitstiff.fitting.fit` (solver, max_steps, denoise,
+        fit: options of :func:`fitstiff.inference.fitting.fit` (solver, max_steps, denoise,
             sample_range, weights, skip, free).
-        reading: options of :func:`fitstiff.loading.load_logs`.
+        reading: options of :func:`fitstiff.io.loading.load_logs`.
         lanes: units solved per ``vmap``-ed call (1: one at a time).
         diagnose: also run :func:`fitstiff.diagnose` on each unit (baseline ``model``).
     """
@@ -117,9 +117,9 @@ def _failure(exc: BaseException) -> str:
 def fit_units(units: Sequence[Unit], settings: Settings) -> list[dict[str, object]]:
     """One row per unit of ``units`` (in their order): loaded, fitted, summarised. A unit
     that fails has its one-line message in ``error`` (and ``converged`` False)."""
-    from fitstiff.fitting import fit_problem, fit_problems
-    from fitstiff.loading import load_logs
-    from fitstiff.problem import Problem
+    from fitstiff.inference.fitting import fit_problem, fit_problems
+    from fitstiff.inference.problem import Problem
+    from fitstiff.io.loading import load_logs
 
     settings_text = settings.text()
     problem_keys = ("denoise", "sample_range", "weights", "skip", "free")

@@ -1,0 +1,889 @@
+"""The identification problem: model + logs -> one flat parameter vector -> whitened residuals.
+
+Shared by least squares (:mod:`fitstiff.inference.fitting`) and the posterior
+(:mod:`fitstiff.inference.posterior`), so both see the same coordinates and the same data.
+
+The flat vector ``theta`` is ``[shared model parameters (unconstrained), per-log nuisances]``.
+Per-log nuisances are the force-channel offset (N, always) and, for models with a friction
+base, the initial friction state (fraction of saturation in (-1, 1), through ``tanh``): a log
+may start mid-hysteresis. Either can be fixed with ``fix``. On request (``free``) the closing
+pressure of each log's closed chambers is a nuisance too (bar gauge in ``theta``), for logs
+whose ``supply_bar`` is unknown or doubtful.
+
+Residuals are whitened per channel: force residuals divided by the log's force-noise estimate,
+and, for closed chambers whose pressure is logged, pressure residuals divided by the
+pressure-noise estimate (these identify the polytropic exponent ``n``). Logs with the same
+static structure are padded to one length and evaluated with one ``vmap``-ed scan, so the
+compile time does not grow with the number of logs; padded samples carry zero weight.
+"""
+
+from __future__ import annotations
+
+import collections
+import copy
+import dataclasses
+import functools
+import inspect
+import math
+import threading
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from typing import NamedTuple
+
+import equinox as eqx
+import numpy as np
+
+from fitstiff._jax import jax, jnp
+from fitstiff.errors import InputError
+from fitstiff.io.guards import check_logs
+from fitstiff.io.log import Log
+from fitstiff.physics.drive import Drive, drive_from_log
+from fitstiff.physics.model import (Model, build_model, difference_acceleration, model_needs,
+                                    time_steps)
+from fitstiff.physics.params import (CONSTANT_JACOBIAN, Param, Parameterization, find_param,
+                                     named_params)
+from fitstiff.physics.terms import Chamber, FrictionBase
+from fitstiff.segments.denoise import (chatters, denoise_displacement, reversal_samples,
+                                       segment_velocity, smooth_acceleration, smooth_force,
+                                       turning_points)
+from fitstiff.segments.segmentation import REGIONS, Segmentation, estimate_noise, segment
+from fitstiff.signal.monotone import pad_runs
+from fitstiff.signal.noise import marginal_scale, noise_floor
+
+__all__ = ["Problem", "compiled_batch", "NUISANCES", "OPTIONAL_NUISANCES", "PROBLEM_OPTIONS",
+           "ResidualSeries", "channel_noise"]
+
+#: the per-log nuisances as transform-layer entries (SI values; ``theta`` holds their
+#: unconstrained values: the offset as it is, the initial friction state through ``tanh``,
+#: the closing pressure in bar, on the scale of the other entries)
+NUISANCE_PARAMS = {
+    "offset": Param("offset", "N", 1.0, -math.inf, math.inf, "force-channel offset of a log"),
+    "friction_state0": Param("friction_state0", "-", 1.0, -1.0, 1.0,
+                             "initial friction state of a log (fraction of saturation)",
+                             transform="tanh"),
+    "closing_pressure": Param("closing_pressure", "bar", 1e5, -math.inf, math.inf,
+                              "gauge pressure at which a log's chambers were closed",
+                              transform="scaled"),
+}
+#: per-log nuisance names (fit.json ``per_log``)
+NUISANCES = tuple(NUISANCE_PARAMS)
+#: keyword options of :class:`Problem` that a fit passes through (and a report must repeat)
+PROBLEM_OPTIONS = ("denoise", "sample_range", "weights", "skip", "free", "exclude")
+#: nuisances held unless asked for with ``free``
+OPTIONAL_NUISANCES = ("closing_pressure",)
+#: a log shorter than this times the longest of its stack is run in a stack of its own
+#: (``benchmarks/posterior_default.py``: four logs of 3 200-12 800 samples)
+PAD_RATIO = 0.7
+#: the observed channels of a log, in the order of the residual vector
+CHANNELS = ("force", "pressure_a", "pressure_b")
+_DEFAULT_CLOSING_PA = 5e5      # gauge start value when neither rig nor log says more
+_PRESSURE_NOISE_FLOOR = 10.0   # Pa, below any real sensor
+_FORCE_NOISE_FLOOR = 1e-3      # N
+
+
+def channel_noise(values: np.ndarray) -> float:
+    """Gaussian-equivalent white-noise level of a sampled channel (MAD of 2nd differences)."""
+    return estimate_noise(values)
+
+
+class ResidualSeries(NamedTuple):
+    """Where one log's channel lies in :meth:`Problem.residuals` (see
+    :meth:`Problem.residual_series`)."""
+
+    log: int          # index into Problem.logs
+    channel: str      # "force", "pressure_a" or "pressure_b"
+    span: slice       # its entries of the residual vector (padded length, in time order)
+    mask: np.ndarray  # (len,) bool: samples with weight > 0 (the others are exactly 0)
+
+
+class _Group(eqx.Module):
+    """Logs with one static structure, padded and stacked for one vmap-ed scan (a pytree:
+    :meth:`Problem.compiled` passes its arrays to compiled functions as arguments)."""
+
+    index: tuple[int, ...] = eqx.field(static=True)   # positions of the logs in Problem.logs
+    drive: Drive                 # stacked: leaves have a leading log axis
+    force: jnp.ndarray           # (L, N) measured force
+    weight: jnp.ndarray          # (L, N) 1/sigma_F * sample weight (0 on padding)
+    pressure: tuple              # per chamber: (L, N) measured abs pressure or None
+    pressure_weight: tuple       # per chamber: (L, N) 1/sigma_p (0 on padding) or None
+
+
+class Problem:
+    """Model, logs and the map from ``theta`` to whitened residuals.
+
+    Args:
+        logs: the logs to fit jointly (seal and chamber parameters shared).
+        model: spec string or a built model (its values are the starting point).
+        fix: parameters to hold: names (held at the model's value) or a mapping name ->
+            SI value (``{"n": 1.4}``; ``None`` holds the model's value). Nuisance names
+            ``offset`` / ``friction_state0`` fix those for every log (at 0).
+        denoise: replace each displacement by its reversal-preserving monotone estimate
+            (:mod:`fitstiff.segments.denoise`) before driving the model. ``"auto"``: when the
+            estimated displacement noise is above 0.05 um, or when the displacement turns
+            where the segmentation finds no reversal (:func:`~fitstiff.segments.denoise.chatters`: a
+            quantised encoder toggling by one count during a pause).
+        sample_range: ``(start, stop)`` sample indices used in every log (others weigh 0).
+        weights: extra weight per segmentation region, e.g. ``{"presliding": 4.0}``.
+        skip: samples at the start of every log that drive the model but weigh 0 (a warm-up
+            that settles the friction state).
+        exclude: sample index ranges ``(start, stop)`` of every log that drive the model but
+            weigh 0 (a glitch, or a block held out to be predicted).
+        free: optional nuisances to fit: ``"closing_pressure"`` (each log's closing pressure
+            of its closed chambers; ``supply_bar`` then only gives the start value).
+        segmentations: one :class:`~fitstiff.segments.segmentation.Segmentation` per log (reversals,
+            pauses, regions, displacement noise), e.g. from
+            :func:`~fitstiff.segments.segmentation.segment` with other options; default
+            ``segment(log)`` for each log.
+
+    A problem is immutable: every attribute is set by the constructor. Compiled functions of
+    it are made by :meth:`compiled`.
+    """
+
+    def __init__(self, logs: Sequence[Log], model: Model | str, *,
+                 fix: Mapping[str, float | None] | Iterable[str] = (), denoise: bool | str = "auto",
+                 sample_range: tuple[int | None, int | None] | None = None,
+                 weights: Mapping[str, float] | None = None, skip: int = 0,
+                 free: Iterable[str] = (), exclude: Sequence[tuple[int, int]] = (),
+                 segmentations: Sequence[Segmentation] | None = None):
+        if not logs:
+            raise InputError(None, "logs", "none given", "name at least one CSV log")
+        free = set(free)
+        if free - set(OPTIONAL_NUISANCES):
+            raise InputError(None, f"--free {', '.join(sorted(free - set(OPTIONAL_NUISANCES)))}",
+                             "is not an optional nuisance",
+                             f"use one of: {', '.join(OPTIONAL_NUISANCES)}")
+        self.logs = list(logs)
+        check_logs(self.logs)
+        self.segmentations: list[Segmentation] = _segmentations(self.logs, segmentations)
+        spec = model if isinstance(model, str) else model.spec
+        needs = model_needs(model)
+        self.displacement_noise = [s.noise for s in self.segmentations]
+        self.denoised = [self._want_denoise(denoise, s, log.displacement)
+                         for log, s in zip(self.logs, self.segmentations)]
+        self.drives: list[Drive] = []
+        for log, seg, den in zip(self.logs, self.segmentations, self.denoised):
+            drive = drive_from_log(log, needs_chamber=needs.chamber_geometry, still=seg.still,
+                                   what=f"model '{spec}'",
+                                   needs_supply="closing_pressure" not in free)
+            if den:
+                x = denoise_displacement(log.displacement, seg.reversals, noise=seg.noise)
+                drive = drive.with_displacement(x)
+                if log.time is not None:
+                    v = segment_velocity(x, log.time, seg.reversals, noise=seg.noise)
+                    a = (smooth_acceleration(log.displacement, log.time, noise=seg.noise)
+                         if needs.acceleration else None)
+                    drive = dataclasses.replace(drive, velocity=jnp.asarray(v),
+                                                acceleration=None if a is None
+                                                else jnp.asarray(a))
+            self.drives.append(drive)
+        self.drives = _same_structure(self.drives)
+        built = build_model(model, drives=self.drives) if isinstance(model, str) else model
+        force_noise = [channel_noise(log.force) for log in self.logs]
+        if any(t.needs_measured_force for t in built.terms):
+            self.drives = [eqx.tree_at(lambda d: d.measured_force, d, jnp.asarray(
+                smooth_force(log.force, log.time, noise=sigma)))
+                for d, log, sigma in zip(self.drives, self.logs, force_noise)]
+        fixed_values = ({k: v for k, v in fix.items() if v is not None}
+                        if isinstance(fix, Mapping) else {})
+        fixed_names = set(fix)
+        self.fixed_nuisances = fixed_names & set(NUISANCES)
+        model_fixed = fixed_names - set(NUISANCES)
+        model_values = {k: v for k, v in fixed_values.items() if k in model_fixed}
+        if model_values:
+            built = Parameterization(built).with_values(built, model_values, where="--fix")
+        self.model = built
+        self.par = Parameterization(built, fixed=model_fixed)
+        self.has_friction = bool(built.terms_of(FrictionBase))
+        closed = any("closed" in d.modes for d in self.drives) and built.has("chamber")
+        if "closing_pressure" in free and not closed:
+            raise InputError(None, "--free closing_pressure",
+                             "no log has a closed, modelled chamber",
+                             "drop the option (logged pressures are used as they are)")
+        applicable = {"offset": True, "friction_state0": self.has_friction,
+                      "closing_pressure": "closing_pressure" in free}
+        self.nuisance_names = [n for n in NUISANCES
+                               if n not in self.fixed_nuisances and applicable[n]]
+        self.force_noise = [max(sigma, _FORCE_NOISE_FLOOR) for sigma in force_noise]
+        self.pressure_noise = [
+            {c: max(channel_noise(p), _PRESSURE_NOISE_FLOOR)
+             for c, p in (("a", log.pressure_a), ("b", log.pressure_b)) if p is not None}
+            for log in self.logs]
+        self.sample_weights = [self._weights(log, seg, sample_range, weights, skip, exclude)
+                               for log, seg in zip(self.logs, self.segmentations)]
+        self._groups = self._build_groups()
+        self._compiled: dict[tuple, Callable] = {}
+        self._reversal_noise: tuple | None = None
+        self.n_data = int(sum(int(np.count_nonzero(np.asarray(g.weight))) + sum(
+            int(np.count_nonzero(np.asarray(w))) for w in g.pressure_weight if w is not None)
+            for g in self._groups))
+        self._frozen = True
+
+    def __setattr__(self, name, value):
+        if getattr(self, "_frozen", False):
+            raise AttributeError(f"a Problem is immutable: cannot set '{name}' (build a new "
+                                 "Problem with other logs, model or options)")
+        object.__setattr__(self, name, value)
+
+    # -- set-up ---------------------------------------------------------------------------
+    @staticmethod
+    def _want_denoise(denoise, seg: Segmentation, displacement) -> bool:
+        if denoise == "auto":
+            return seg.noise > 0.05e-6 or chatters(displacement, seg.reversals)
+        return bool(denoise)
+
+    @staticmethod
+    def _weights(log, seg, sample_range, weights, skip, exclude) -> np.ndarray:
+        n = len(log)
+        w = np.ones(n)
+        if sample_range is not None:
+            start, stop = sample_range
+            keep = np.zeros(n, dtype=bool)
+            keep[slice(start, stop)] = True
+            w[~keep] = 0.0
+        if skip:
+            w[:skip] = 0.0
+        for item in exclude:
+            try:
+                start, stop = (int(v) for v in item)
+            except (TypeError, ValueError):
+                raise InputError(None, f"exclude {item!r}", "is not a (start, stop) pair of "
+                                 "sample indices", "give e.g. (1000, 2000)") from None
+            if not 0 <= start < stop:
+                raise InputError(None, f"exclude ({start}, {stop})", "is not a range of "
+                                 "sample indices with 0 <= start < stop",
+                                 "give e.g. (1000, 2000)")
+            w[start:stop] = 0.0
+        for region, factor in (weights or {}).items():
+            if region not in REGIONS:
+                raise InputError(None, f"--weight {region}={factor}", "unknown region",
+                                 f"use one of: {', '.join(REGIONS)}")
+            if factor < 0 or not math.isfinite(factor):
+                raise InputError(None, f"--weight {region}={factor}", "negative or not finite",
+                                 "give a weight >= 0")
+            w[seg.mask(region)] *= factor
+        if not np.any(w > 0):
+            raise InputError(log.path and str(log.path) or log.name, "sample selection",
+                             "leaves no sample with weight > 0",
+                             "widen --range or lower --skip")
+        return w
+
+    def _build_groups(self) -> list[_Group]:
+        """Logs of one structure (chamber modes, observed channels, time) are stacked and run
+        as one ``vmap``-ed scan, padded to the longest; logs much shorter than the longest
+        start their own stack (:data:`PAD_RATIO`), so padding wastes little work."""
+        keys: dict[tuple, list[int]] = {}
+        for i, d in enumerate(self.drives):
+            keys.setdefault((d.modes, d.observed, d.has_time), []).append(i)
+        stacks = [bucket for index in keys.values()
+                  for bucket in _length_buckets(index, [len(d) for d in self.drives])]
+        groups = []
+        for index in stacks:
+            n_max = max(len(self.drives[i]) for i in index)
+            drives = _same_closed_forms([_pad_drive(self.drives[i], n_max) for i in index])
+            stacked = jax.tree.map(lambda *xs: jnp.stack(xs), *drives)
+            force = np.stack([_pad(self.logs[i].force, n_max) for i in index])
+            weight = np.stack([_pad(self.sample_weights[i], n_max, fill=0.0)
+                               / self.force_noise[i] for i in index])
+            pressures, pressure_weights = [], []
+            for c, chamber in enumerate(("a", "b")):
+                if not self.drives[index[0]].observed[c]:
+                    pressures.append(None)
+                    pressure_weights.append(None)
+                    continue
+                attr = f"pressure_{chamber}"
+                pressures.append(jnp.asarray(np.stack(
+                    [_pad(getattr(self.logs[i], attr), n_max) for i in index])))
+                pressure_weights.append(jnp.asarray(np.stack(
+                    [_pad(self.sample_weights[i] > 0, n_max, fill=0.0).astype(float)
+                     / self.pressure_noise[i][chamber] for i in index])))
+            groups.append(_Group(tuple(index), stacked, jnp.asarray(force), jnp.asarray(weight),
+                                 tuple(pressures), tuple(pressure_weights)))
+        return groups
+
+    # -- the flat vector ------------------------------------------------------------------
+    @property
+    def n_logs(self) -> int:
+        return len(self.logs)
+
+    @property
+    def names(self) -> list[str]:
+        """Names of theta's entries: model parameters, then ``<nuisance>[<log name>]``."""
+        return self.par.names + [f"{n}[{log.name}]" for n in self.nuisance_names
+                                 for log in self.logs]
+
+    @property
+    def size(self) -> int:
+        return self.par.size + len(self.nuisance_names) * self.n_logs
+
+    def closing_pressure_start(self) -> np.ndarray:
+        """Start values (Pa gauge) of the closing pressures: the rig's ``supply_bar``, else the
+        first logged pressure of a closed chamber, else 5 bar."""
+        out = []
+        for log, drive in zip(self.logs, self.drives):
+            value = log.rig.supply_pressure
+            for c, chamber in enumerate("ab"):
+                gauge = log.gauge(chamber)
+                if value is None and drive.observed[c] and gauge is not None:
+                    value = float(gauge[0])
+            out.append(_DEFAULT_CLOSING_PA if value is None else value)
+        return np.asarray(out)
+
+    def pack(self, model: Model, nuisances: Mapping[str, Sequence[float]] | None = None):
+        """theta from a model and per-log nuisance values (``offset`` in N,
+        ``friction_state0`` in (-1, 1), ``closing_pressure`` in Pa gauge); missing offsets
+        and states are 0, missing closing pressures :meth:`closing_pressure_start`."""
+        parts = [np.asarray(self.par.to_unconstrained(model))]
+        nuisances = dict(nuisances or {})
+        nuisances.setdefault("closing_pressure", self.closing_pressure_start())
+        for name in self.nuisance_names:
+            values = np.asarray(nuisances.get(name, np.zeros(self.n_logs)), float)
+            if name == "friction_state0":
+                values = np.clip(values, -0.999, 0.999)     # a start off saturation
+            parts.append(np.asarray(self.nuisance_param(name).inverse(values)))
+        return jnp.asarray(np.concatenate(parts))
+
+    def unpack(self, theta):
+        """``(model, {nuisance: (n_logs,) values})`` for ``theta`` (differentiable)."""
+        return self.par.to_model(theta[:self.par.size], self.model), self.nuisances(theta)
+
+    def unpack_physical(self, values) -> tuple[Model, dict[str, np.ndarray]]:
+        """:meth:`unpack` of the SI values :meth:`physical` returns: no transform is
+        evaluated (NumPy in, NumPy out; the fit's summary has them from its compiled pass)."""
+        values = np.asarray(values, dtype=float)
+        model = self.par.physical_to_model(values[:self.par.size], self.model)
+        off = self.par.size + self.n_logs * np.arange(len(self.nuisance_names))
+        return model, {name: values[o:o + self.n_logs]
+                       for name, o in zip(self.nuisance_names, off)}
+
+    def nuisances(self, theta):
+        """``{nuisance: (n_logs,) values}`` of ``theta`` (its entries after the model's)."""
+        out, off = {}, self.par.size
+        for name in self.nuisance_names:
+            out[name] = self.nuisance_param(name).forward(theta[off:off + self.n_logs])
+            off += self.n_logs
+        return out
+
+    def nuisance_param(self, name: str) -> Param:
+        """The transform-layer entry of nuisance ``name``: one element per log."""
+        return dataclasses.replace(NUISANCE_PARAMS[name], size=self.n_logs)
+
+    def linear_entries(self) -> list[int]:
+        """Positions in ``theta`` of the entries the residuals are exactly linear in: the
+        per-log force offsets (added to the model force; the posterior integrates them out)."""
+        if "offset" not in self.nuisance_names:
+            return []
+        start = self.par.size + self.nuisance_names.index("offset") * self.n_logs
+        return list(range(start, start + self.n_logs))
+
+    def log_jacobian(self, theta):
+        """log |d(physical)/d(theta)|, the constant parts left out (the nuisances' with a
+        :data:`~fitstiff.physics.params.CONSTANT_JACOBIAN` transform: offsets, closing
+        pressures)."""
+        lj = self.par.log_jacobian(theta[:self.par.size])
+        for k, name in enumerate(self.nuisance_names):
+            param = self.nuisance_param(name)
+            if param.transform not in CONSTANT_JACOBIAN:
+                off = self.par.size + k * self.n_logs
+                lj = lj + param.log_jacobian(theta[off:off + self.n_logs])
+        return lj
+
+    def physical(self, theta):
+        """SI values of every entry of ``theta``, in the order of :attr:`names` (model
+        parameters through their transforms, offsets in N, initial states in (-1, 1))."""
+        _, nuisances = self.unpack(theta)
+        return jnp.concatenate([self.par.physical(theta[:self.par.size])]
+                               + [nuisances[n] for n in self.nuisance_names])
+
+    # -- evaluation -----------------------------------------------------------------------
+    def residual_series(self, channels: Sequence[str] = CHANNELS) -> list[ResidualSeries]:
+        """The layout of :meth:`residuals`: one entry per log and observed channel, in the
+        order of the residual vector. Each covers its log's padded length in time order;
+        samples outside ``mask`` (padding, zero weight) have residual exactly 0.
+        ``channels``: only those of :data:`CHANNELS` (the layout of ``residuals(...,
+        channels=)``)."""
+        out, start = [], 0
+        for g in self._groups:
+            n = g.force.shape[1]
+            channels_here = [("force", g.weight)] + [
+                (f"pressure_{c}", w) for c, w in zip("ab", g.pressure_weight) if w is not None]
+            for channel, weight in channels_here:
+                if channel not in channels:
+                    continue
+                positive = np.asarray(weight) > 0          # one transfer, not one per row
+                for row, i in enumerate(g.index):
+                    out.append(ResidualSeries(i, channel, slice(start, start + n),
+                                              positive[row]))
+                    start += n
+        return out
+
+    def displacements(self) -> tuple:
+        """The displacement each group drives the model with, ``(L, N)`` per group."""
+        return tuple(g.drive.displacement for g in self._groups)
+
+    @functools.cached_property
+    def displacement_rho(self) -> list[float]:
+        """Lag-1 correlation of each log's displacement noise, from
+        :func:`~fitstiff.signal.noise.noise_floor` (``displacement_noise`` is its white-equivalent
+        level; the marginal one is ``noise * marginal_scale(rho)``). Estimated on first use:
+        only the turning points' errors and fit.json need it."""
+        return [noise_floor(log.displacement).rho for log in self.logs]
+
+    def reversal_noise(self) -> tuple:
+        """Per group ``(L, N)``: the standard error (m) of each log's turning points at their
+        samples, 0 elsewhere - the local fit's (:func:`~fitstiff.segments.denoise.turning_points`)
+        for a denoised log, else the displacement noise. Both allow for correlated
+        displacement noise (its lag-1 correlation from :func:`~fitstiff.signal.noise.noise_floor`):
+        read as white, AR(1) noise of correlation 0.73 looks 2.2 times smaller than it is and
+        the turning points' errors came out half the actual ones (``benchmarks/
+        calibration.py`` datasets). An error in a turning point shifts the whole branch after
+        it; this is the errors-in-variables part of the covariance
+        (:mod:`fitstiff.inference.fitting`) and of the posterior's likelihood. Computed once, from
+        the concrete drives (a :meth:`compiled` function receives them as arguments)."""
+        if self._reversal_noise is not None:
+            return self._reversal_noise
+        out = []
+        for g in self._groups:
+            rows = []
+            for i in g.index:
+                row = np.zeros(g.force.shape[1])
+                seg = self.segmentations[i]
+                rho = self.displacement_rho[i]
+                if self.denoised[i]:
+                    # a denoised log's turning points are local fits: their own errors
+                    index, _, error = turning_points(self.logs[i].displacement,
+                                                     seg.reversals, noise=seg.noise, rho=rho)
+                    row[index] = error
+                else:
+                    x = np.asarray(self.drives[i].displacement)
+                    row[reversal_samples(x, seg.reversals)] = (self.displacement_noise[i]
+                                                               * marginal_scale(rho))
+                rows.append(row)
+            out.append(jnp.asarray(np.stack(rows)))
+        object.__setattr__(self, "_reversal_noise", tuple(out))     # computed once, on demand
+        return self._reversal_noise
+
+    def _group_drive(self, group: _Group, nuisances, displacement=None):
+        idx = jnp.asarray(group.index)
+        drive = group.drive
+        if displacement is not None:
+            drive = drive.moved(displacement)
+        if "offset" in nuisances:
+            drive = eqx.tree_at(lambda d: d.force_offset, drive, nuisances["offset"][idx])
+        if "friction_state0" in nuisances:
+            drive = eqx.tree_at(lambda d: d.friction_state0, drive,
+                                nuisances["friction_state0"][idx])
+        if "closing_pressure" in nuisances:
+            p0 = drive.p_amb + nuisances["closing_pressure"][idx]
+            drive = eqx.tree_at(lambda d: (d.p_a0, d.p_b0), drive, (p0, p0))
+        return drive
+
+    def predictions(self, theta, displacements=None):
+        """Per group: the vmap-ed :class:`~fitstiff.physics.model.Prediction` (leading log axis).
+        ``displacements`` (shaped as :meth:`displacements`) replaces the model input."""
+        return self.model_predictions(*self.unpack(theta), displacements)
+
+    def residuals_physical(self, x, theta):
+        """:meth:`residuals` with the model's free parameters given in SI (``x``, ordered as
+        ``par.names``) instead of ``theta``'s unconstrained entries; ``theta`` supplies the
+        nuisances. The path for score statistics at nulls on a bound
+        (:meth:`~fitstiff.physics.params.Parameterization.physical_to_model`)."""
+        model = self.par.physical_to_model(x, self.model)
+        return self.model_residuals(model, self.nuisances(theta))
+
+    def model_predictions(self, model, nuisances, displacements=None):
+        """:meth:`predictions` of a given model and nuisance values."""
+        displacements = displacements or (None,) * len(self._groups)
+        return [jax.vmap(model.run)(self._group_drive(g, nuisances, x))
+                for g, x in zip(self._groups, displacements)]
+
+    def residuals(self, theta, displacements=None, *, channels: Sequence[str] = CHANNELS):
+        """Whitened residual vector (model - data), padded entries exactly 0; ``channels``:
+        only the series of those channels (:meth:`residual_series` with them)."""
+        return self.model_residuals(*self.unpack(theta), displacements, channels=channels)
+
+    def model_residuals(self, model, nuisances, displacements=None, *,
+                        channels: Sequence[str] = CHANNELS, predictions=None):
+        """:meth:`residuals` of a given model and nuisance values (``predictions``: their
+        :meth:`model_predictions`, when the caller has them)."""
+        parts = []
+        if predictions is None:
+            predictions = self.model_predictions(model, nuisances, displacements)
+        for group, pred in zip(self._groups, predictions):
+            if "force" in channels:
+                parts.append(((pred.force - group.force) * group.weight).ravel())
+            for c, measured in enumerate(group.pressure):
+                if measured is None or CHANNELS[1 + c] not in channels:
+                    continue
+                modelled = pred.pressure_a if c == 0 else pred.pressure_b
+                parts.append(((modelled - measured) * group.pressure_weight[c]).ravel())
+        return jnp.concatenate(parts)
+
+    def closing_pressures(self, theta):
+        """``(n_logs, 2)``: each log's absolute pressure of chambers A and B at its first
+        sample, as the model starts from it (the drive's, or the ``closing_pressure``
+        nuisance's)."""
+        nuisances = self.nuisances(theta)
+        rows = [None] * self.n_logs
+        for g in self._groups:
+            drive = self._group_drive(g, nuisances)
+            for row, i in enumerate(g.index):
+                rows[i] = jnp.stack([drive.p_a0[row], drive.p_b0[row]])
+        return jnp.stack(rows)
+
+    def pressure_closed_forms(self) -> list[tuple[int, int, np.ndarray, np.ndarray, np.ndarray]]:
+        """Per pressure series of :meth:`residuals` (in order), when the model's pressures are
+        their closed form (:meth:`Model.closed_form_chamber
+        <fitstiff.physics.model.Model.closed_form_chamber>`) ``p = p0 * exp(n * log_ratio)``:
+        ``(log, chamber (0: A, 1: B), log_ratio, measured, weight)``, NumPy arrays over the
+        series' padded length, ``p0`` the log's :meth:`closing_pressures`; the residual is
+        ``(p - measured) * weight``. Empty when the pressures have no closed form."""
+        if self.model.closed_form_chamber() is None:
+            return []
+        out = []
+        for g in self._groups:
+            ratios = [np.asarray(r) for r in Chamber.log_ratios(g.drive)]
+            for c, measured in enumerate(g.pressure):
+                if measured is None:
+                    continue
+                for row, i in enumerate(g.index):
+                    out.append((i, c, ratios[c][row], np.asarray(measured[row]),
+                                np.asarray(g.pressure_weight[c][row])))
+        return out
+
+    def per_log(self, theta) -> list[dict[str, np.ndarray]]:
+        """Per log (in order): predicted force, per-term forces and pressures, unpadded."""
+        out: list[dict[str, np.ndarray] | None] = [None] * self.n_logs
+        predictions = self.compiled(Problem.predictions)
+        for group, pred in zip(self._groups, predictions(theta)):
+            for row, i in enumerate(group.index):
+                n = len(self.logs[i])
+                out[i] = {"force": np.asarray(pred.force[row, :n]),
+                          "contributions": np.asarray(pred.contributions[row, :n]),
+                          "pressure_a": np.asarray(pred.pressure_a[row, :n]),
+                          "pressure_b": np.asarray(pred.pressure_b[row, :n])}
+        return out  # type: ignore[return-value]
+
+    def unpad(self, per_group) -> list[np.ndarray]:
+        """Per log (in order), unpadded: arrays given per group with a leading log axis (as
+        :meth:`predictions` returns them)."""
+        out: list[np.ndarray | None] = [None] * self.n_logs
+        for group, values in zip(self._groups, per_group):
+            values = np.asarray(values)
+            for row, i in enumerate(group.index):
+                out[i] = values[row, :len(self.logs[i])]
+        return out  # type: ignore[return-value]
+
+    @property
+    def par_fixed(self) -> set[str]:
+        """Model parameter names held fixed."""
+        free = set(self.par.names)
+        return {n for _, _, names in named_params(self.model) for n in names} - free
+
+    def par_unit(self, name: str) -> str:
+        return find_param(self.model, name).unit
+
+    def compiled(self, fn: Callable, /, **options) -> Callable:
+        """``fn(problem, *args, **options)`` compiled for this problem, as ``f(*args)``.
+
+        ``fn`` is a module-level function (or a method of :class:`Problem`) that reaches the
+        data only through its ``problem`` argument; ``options`` are static (hashable) values
+        it is specialised on (a solver's tolerances, a noise model). It is compiled with
+        ``jax.jit``, the arguments split as ``equinox.filter_jit`` does (arrays traced, other
+        leaves static and hashable), and this problem's data arrays (the stacked drives,
+        measurements and weights, the turning-point errors) passed to the executable as
+        arguments: a function closing over the problem would compile them in as constants, a
+        copy per function that XLA copies again while compiling (``benchmarks/fit_memory.py``:
+        about 600 MB more peak for the solve of a 1 M-sample log).
+
+        **One compilation per structure.** Problems of one structure (:meth:`structure_key`:
+        the same model and fixed values, nuisances, log lengths and channels, array shapes)
+        share one compiled executable per ``(fn, options)``: a fleet's cylinders, the
+        diagnosis' folds and candidate refits compile once, not once per problem (a
+        ``chamber+dahl`` fit of two 3 700-sample logs: about 5 s of its 5.4 s are the two
+        compilations). The shared function keeps no problem alive: it is traced with the
+        problem that calls it, whose data are arguments, and only ``fn``'s static structure
+        is part of it. Anything else ``fn`` could read off the problem that differs between
+        problems of one structure is part of the key.
+        """
+        key = (fn, tuple(sorted(options.items())))
+        if key not in self._compiled:
+            bound = functools.partial(fn, **options) if options else fn
+            # the problem's arrays are split from its static structure once, not per call:
+            # ``jax.jit`` over the array leaves and the arguments' arrays dispatches in about
+            # 13 us against 51 us for ``equinox.filter_jit`` re-partitioning the problem
+            # (a posterior step calls one function of about 1 ms)
+            data, structure = eqx.partition(self._arrays(), eqx.is_array)
+            # and flattened once: a flat list of arrays is flattened in C++ per call, the
+            # problem's modules in Python (about 80 us of a 1 ms posterior call)
+            leaves, tree = jax.tree.flatten(data)
+            shared = _shareable(fn) and self.structure_key(leaves, tree, structure)
+            with _SHARED_LOCK:
+                jitted = _SHARED.get((key, shared)) if shared else None
+            if jitted is None:
+                def run(leaves, arg_data, arg_static):
+                    problem = _CALLER.problem
+                    arrays = eqx.combine(jax.tree.unflatten(tree, leaves), structure)
+                    return bound(problem._with_arrays(arrays),
+                                 *eqx.combine(arg_data, arg_static))
+
+                jitted = jax.jit(run, static_argnums=2)
+                if shared:
+                    _share((key, shared), jitted)
+
+            def call(*args):
+                caller = getattr(_CALLER, "problem", None)
+                _CALLER.problem = self       # the problem a (re)trace reads its structure off
+                try:
+                    if all(isinstance(a, (np.ndarray, jax.Array)) for a in args):
+                        return jitted(leaves, args, (None,) * len(args))
+                    arg_data, arg_static = eqx.partition(args, eqx.is_array)
+                    return jitted(leaves, arg_data, arg_static)
+                finally:
+                    _CALLER.problem = caller
+
+            self._compiled[key] = call
+        return self._compiled[key]
+
+    def structure_key(self, leaves=None, tree=None, structure=None) -> tuple | None:
+        """What a function compiled for this problem depends on besides its data arrays
+        (hashable; ``None`` when some static part cannot be hashed): the arrays' tree and
+        shapes, their static structure, the model's values (the start values and the fixed
+        ones live in it), the free parameters and nuisances, the logs' lengths and whether
+        each was denoised. Two problems with equal keys share compiled functions
+        (:meth:`compiled`); a fleet batches cylinders of one key (:mod:`fitstiff.fleet`)."""
+        if leaves is None:
+            data, structure = eqx.partition(self._arrays(), eqx.is_array)
+            leaves, tree = jax.tree.flatten(data)
+        static = _fingerprint(structure)
+        model = _fingerprint(self.model)
+        if static is None or model is None:
+            return None
+        return (tree, tuple((np.shape(a), np.dtype(a.dtype).str) for a in leaves), static,
+                model, tuple(self.par.names), tuple(self.nuisance_names),
+                tuple(sorted(self.fixed_nuisances)), self.has_friction,
+                tuple(len(log) for log in self.logs), tuple(self.denoised))
+
+    def _arrays(self):
+        # a drive's name labels messages only: problems that differ in their logs' names
+        # alone share compiled functions (:meth:`structure_key`)
+        drives = [dataclasses.replace(d, name="") if d.name else d for d in self.drives]
+        return self._groups, drives, self.reversal_noise()
+
+    def _with_arrays(self, arrays) -> Problem:
+        """A copy whose data arrays are ``arrays`` (the traced arguments of :meth:`compiled`)."""
+        bound = copy.copy(self)
+        for name, value in zip(("_groups", "drives", "_reversal_noise"), arrays):
+            object.__setattr__(bound, name, value)
+        return bound
+
+
+def compiled_batch(problems: Sequence[Problem], fn: Callable, /, *, lanes: int | None = None,
+                   **options) -> Callable:
+    """``fn(problem, *args, **options)`` for each of ``problems`` at once, as one ``vmap``-ed,
+    compiled call ``f(*args)`` whose arguments and results carry a leading problem axis.
+
+    The problems must share one :meth:`Problem.structure_key` (a fleet's cylinders of one
+    structure; :mod:`fitstiff.fleet`): their data arrays are stacked and ``fn`` is traced
+    once, with the first problem's structure. ``lanes`` (at least ``len(problems)``) fixes
+    the batch the executable is compiled for: the call pads the stack with copies of the last
+    problem and drops their results, so one executable serves every batch of up to ``lanes``
+    problems and a problem's lane computes the same bits whichever problems share its call.
+    The executable is shared like :meth:`Problem.compiled`'s.
+    """
+    problems = list(problems)
+    if not problems:
+        raise ValueError("compiled_batch needs at least one problem")
+    lanes = lanes or len(problems)
+    if lanes < len(problems):
+        raise ValueError(f"lanes={lanes} is fewer than the {len(problems)} problems")
+    first = problems[0]
+    data, structure = eqx.partition(first._arrays(), eqx.is_array)
+    leaves, tree = jax.tree.flatten(data)
+    key = first.structure_key(leaves, tree, structure)
+    stacks = [leaves]
+    for p in problems[1:]:
+        if p.structure_key() != key or key is None:
+            raise ValueError("compiled_batch: the problems differ in structure "
+                             "(Problem.structure_key); batch only problems of one structure")
+        stacks.append(jax.tree.flatten(eqx.partition(p._arrays(), eqx.is_array)[0])[0])
+    pad = lanes - len(problems)
+    stacks += [stacks[-1]] * pad
+    stacked = [jnp.stack(xs) for xs in zip(*stacks)]
+    shared = ((("lanes", lanes), fn, tuple(sorted(options.items()))), key) \
+        if _shareable(fn) and key is not None else None
+    with _SHARED_LOCK:
+        jitted = _SHARED.get(shared) if shared else None
+    if jitted is None:
+        bound = functools.partial(fn, **options) if options else fn
+
+        def run(stacked, args):
+            template = _CALLER.problem
+
+            def one(leaves, *lane_args):
+                arrays = eqx.combine(jax.tree.unflatten(tree, leaves), structure)
+                return bound(template._with_arrays(arrays), *lane_args)
+
+            return jax.vmap(one)(stacked, *args)
+
+        jitted = jax.jit(run)
+        if shared:
+            _share(shared, jitted)
+
+    def call(*args):
+        args = tuple(jnp.concatenate([a, jnp.repeat(a[-1:], pad, axis=0)]) if pad else a
+                     for a in (jnp.asarray(a) for a in args))
+        caller = getattr(_CALLER, "problem", None)
+        _CALLER.problem = first
+        try:
+            out = jitted(stacked, args)
+        finally:
+            _CALLER.problem = caller
+        return jax.tree.map(lambda x: x[:len(problems)], out) if pad else out
+
+    return call
+
+
+def _segmentations(logs: Sequence[Log], given: Sequence[Segmentation] | None
+                   ) -> list[Segmentation]:
+    """``given`` checked against ``logs`` (one per log, of its length), or ``segment(log)``."""
+    if given is None:
+        return [segment(log) for log in logs]
+    given = list(given)
+    if len(given) != len(logs):
+        raise InputError(None, "segmentations", f"{len(given)} given for {len(logs)} logs",
+                         "give one Segmentation per log, in the order of the logs")
+    for log, seg in zip(logs, given):
+        if not isinstance(seg, Segmentation) or len(seg.still) != len(log):
+            found = (type(seg).__name__ if not isinstance(seg, Segmentation)
+                     else f"one of {len(seg.still)} samples")
+            raise InputError(log.path and str(log.path) or log.name, "segmentation",
+                             f"found {found} for a log of {len(log)} samples",
+                             "give the Segmentation of this log (fitstiff.segment(log))")
+    return given
+
+
+def _length_buckets(index: Sequence[int], lengths: Sequence[int]) -> list[list[int]]:
+    """``index`` cut into stacks of similar length: longest first, a log shorter than
+    :data:`PAD_RATIO` times its stack's longest starts the next stack (in log order within)."""
+    order = sorted(index, key=lambda i: -lengths[i])
+    stacks: list[list[int]] = []
+    for i in order:
+        if stacks and lengths[i] >= PAD_RATIO * lengths[stacks[-1][0]]:
+            stacks[-1].append(i)
+        else:
+            stacks.append([i])
+    return [sorted(stack) for stack in stacks]
+
+
+def _pad(a, n: int, *, fill: float | None = None) -> np.ndarray:
+    a = np.asarray(a, dtype=float)
+    if a.shape[0] == n:
+        return a
+    value = a[-1] if fill is None else fill
+    return np.concatenate([a, np.full(n - a.shape[0], value)])
+
+
+def _pad_drive(drive: Drive, n: int) -> Drive:
+    """Extend a drive to ``n`` samples by holding the last state (time keeps ticking)."""
+    m = len(drive)
+    if m == n:
+        return dataclasses.replace(drive, name="") if drive.name else drive
+    dt = float(drive.time[-1] - drive.time[-2]) if m > 1 else 1.0
+    time = np.concatenate([np.asarray(drive.time), float(drive.time[-1]) + dt * np.arange(1, n - m + 1)])
+    return dataclasses.replace(
+        drive, name="", time=jnp.asarray(time),
+        displacement=jnp.asarray(_pad(drive.displacement, n)),
+        pressure_a=jnp.asarray(_pad(drive.pressure_a, n)),
+        pressure_b=jnp.asarray(_pad(drive.pressure_b, n)),
+        still=jnp.asarray(_pad(drive.still, n)),
+        velocity=None if drive.velocity is None else jnp.asarray(_pad(drive.velocity, n,
+                                                                       fill=0.0)),
+        acceleration=(None if drive.acceleration is None
+                      else jnp.asarray(_pad(drive.acceleration, n, fill=0.0))),
+        measured_force=(None if drive.measured_force is None
+                        else jnp.asarray(_pad(drive.measured_force, n))),
+        runs=(None if drive.runs is None
+              else pad_runs(drive.runs, n, int(drive.runs.before.shape[0]))),
+        log_volume_ratios=(None if drive.log_volume_ratios is None
+                           else tuple(jnp.asarray(_pad(r, n)) for r in drive.log_volume_ratios)))
+
+
+def _same_closed_forms(drives: list[Drive]) -> list[Drive]:
+    """Drives of one stack (one length) with one structure for the closed forms (a stack is
+    one ``vmap``-ed evaluation): runs of one count, or none when one of them has none; the
+    widest chamber span, or none (nor log volume ratios) when one of them has none."""
+    spans = [d.log_volume_span for d in drives]
+    span = None if None in spans else max(spans)
+    count = (None if any(d.runs is None for d in drives)
+             else max(int(d.runs.before.shape[0]) for d in drives))
+    return [dataclasses.replace(d, runs=None if count is None else pad_runs(d.runs, len(d), count),
+                                log_volume_span=span,
+                                log_volume_ratios=None if span is None else d.log_volume_ratios)
+            for d in drives]
+
+
+def _same_structure(drives: list[Drive]) -> list[Drive]:
+    """Drives that all carry a velocity (and acceleration) when one does.
+
+    ``denoise="auto"`` denoises only the logs whose displacement is noisy, and logs of one
+    length are stacked into a batch; a log left as measured gets the difference quotients
+    the model would take itself (the same values), so the batch has one structure.
+    """
+    out = list(drives)
+    for field in ("velocity", "acceleration"):
+        if not any(getattr(d, field) is not None for d in out):
+            continue
+        for k, d in enumerate(out):
+            if getattr(d, field) is not None:
+                continue
+            dt, dt_mid = time_steps(d.time)
+            x = d.displacement
+            v = d.velocity if d.velocity is not None else jnp.diff(x, prepend=x[0]) / dt
+            value = v if field == "velocity" else difference_acceleration(v, dt_mid)
+            out[k] = dataclasses.replace(d, **{field: jnp.asarray(value)})
+    return out
+
+
+#: functions compiled for one structure, shared by the problems of that structure
+#: (:meth:`Problem.compiled`); the oldest is dropped beyond :data:`_SHARED_MAX`
+_SHARED: collections.OrderedDict[tuple, Callable] = collections.OrderedDict()
+_SHARED_MAX = 64
+#: the problem whose call is running a shared compiled function (per thread): a trace reads
+#: its static structure off it
+_CALLER = threading.local()
+
+
+_SHARED_LOCK = threading.Lock()     # the diagnosis compiles from two threads
+
+
+def _share(key: tuple, jitted: Callable) -> None:
+    """Keep ``jitted`` for ``key``, the oldest dropped beyond :data:`_SHARED_MAX` (a function
+    still held by a problem stays usable; only new problems compile it again)."""
+    with _SHARED_LOCK:
+        _SHARED[key] = jitted
+        _SHARED.move_to_end(key)
+        while len(_SHARED) > _SHARED_MAX:
+            _SHARED.popitem(last=False)
+
+
+def _shareable(fn) -> bool:
+    """Whether compilations of ``fn`` may be shared between problems: a module-level function
+    (a bound method or a closure is one object per problem or per call)."""
+    return inspect.isfunction(fn) and "<locals>" not in fn.__qualname__
+
+
+def _fingerprint(tree) -> tuple | None:
+    """A hashable image of a pytree's structure and leaf values (arrays by their bytes), or
+    ``None`` when a leaf cannot be hashed."""
+    leaves, treedef = jax.tree.flatten(tree)
+    out = []
+    for leaf in leaves:
+        if isinstance(leaf, (np.ndarray, jax.Array)):
+            a = np.asarray(leaf)
+            out.append((a.shape, a.dtype.str, a.tobytes()))
+            continue
+        try:
+            hash(leaf)
+        except TypeError:
+            return None
+        out.append((type(leaf), leaf))
+    return (treedef, tuple(out))

@@ -1,0 +1,79 @@
+"""Effects on the measurement rather than the force (DESIGN §3): delay and rig compliance.
+
+``time_delay`` shifts the displacement the model sees: the force channel lags the
+displacement channel by ``delay`` (the model is driven by ``x(t - delay)``, linearly
+interpolated). ``rig_compliance`` is a spring in series between the displacement sensor and
+the piston: the piston moves ``x_sensor - compliance * F``; the composition solves that
+implicit relation every step (:mod:`fitstiff.physics.model`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from fitstiff._jax import jnp
+from fitstiff.physics.params import Param
+from fitstiff.physics.terms.base import InputTerm, SeriesTerm, Term
+
+__all__ = ["MeasuredForceCompliance", "RigCompliance", "TimeDelay"]
+
+
+class TimeDelay(InputTerm):
+    name = "time_delay"
+    summary = "the force channel lags the displacement channel"
+    excitation = "a time column and fast reversals or a sine sweep (the lag shows where the force changes quickly)"
+
+    delay: float = 0.0
+
+    def params(self):
+        return (Param("delay", "ms", 1e-3, -0.1, 0.1, "force lag behind displacement", null=0.0),)
+
+    def transform_input(self, drive, x):
+        if not drive.has_time:
+            return x
+        return jnp.interp(drive.time - self.delay, drive.time, x)
+
+
+class _Compliance(Term):
+    """The rig's series spring, whichever way the model applies it."""
+
+    name = "rig_compliance"
+    summary = "a spring in series between the displacement sensor and the piston"
+    excitation = "reversals in the pre-sliding range (small-amplitude loops), where the seal is stiffest"
+
+    compliance: float = 1e-6
+
+    def params(self):
+        return (Param("compliance", "mm/N", 1e-3, 0.0, np.inf,
+                      "series compliance of the rig (1 / rig stiffness)", null=0.0),)
+
+
+class RigCompliance(_Compliance, SeriesTerm):
+    @classmethod
+    def from_spec(cls, arg, *, drives=()):
+        if arg == "measured":
+            return MeasuredForceCompliance()
+        return super().from_spec(arg)
+
+
+class MeasuredForceCompliance(_Compliance, InputTerm):
+    """``rig_compliance:measured``: the same series spring, with the piston displacement
+    taken as ``x_sensor - compliance * F_measured`` (the logged force as an input, its noise
+    smoothed out by :class:`~fitstiff.inference.problem.Problem`) instead of solving
+    ``x_piston = x_sensor - compliance * F_model`` every step. Equal up to the force's
+    remaining error times the compliance; no Newton iteration in the scan and no coupling of
+    every term to the piston motion, so the rest of the model keeps its all-samples
+    evaluation. The diagnosis screens and refits the effect this way; the simulator uses the
+    series form.
+    """
+
+    needs_measured_force = True
+
+    @property
+    def token(self) -> str:
+        return "rig_compliance:measured"
+
+    def transform_input(self, drive, x):
+        if drive.measured_force is None:
+            return x
+        return x - self.compliance * drive.measured_force
