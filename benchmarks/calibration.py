@@ -24,72 +24,10 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
-import time
 
 import numpy as np
 
-from fitstiff._testing.calibration import DRAW_PRIORS, QUANTITIES, dataset
-from fitstiff.inference.fitting import fit
-from fitstiff.inference.posterior import sample_posterior
-from fitstiff.present.reopen import Z90
-
-
-def score(seed: int, *, noise_models=("ar1", "gaussian"), walkers: int = 16, steps: int = 3000,
-          tau_multiple: float = 30.0, priors: str = "draw", moves: str = "de",
-          integrate_offsets: bool = True) -> dict[str, object]:
-    """One dataset: fit, sample with each noise model, check the 90 % intervals."""
-    logs, truth = dataset(seed)
-    t0 = time.perf_counter()
-    result = fit(logs, "chamber+dahl")
-    row: dict[str, object] = {"seed": seed, "truth": truth, "fit_converged": result.converged,
-                              "fit_seconds": time.perf_counter() - t0,
-                              "residual_lag1": result.residual_autocorrelation}
-    row["least_squares"] = {}
-    for key in QUANTITIES:
-        value, err = result.derived[key]
-        row["least_squares"][key] = _entry(value - Z90 * err, value, value + Z90 * err,
-                                           truth[key])
-    for name in noise_models:
-        t0 = time.perf_counter()
-        post = sample_posterior(result, noise_model=name, walkers=walkers, steps=steps,
-                                tau_multiple=tau_multiple, seed=seed, progress=False, draws=1,
-                                priors=DRAW_PRIORS if priors == "draw" else None,
-                                moves=moves, integrate_offsets=integrate_offsets)
-        entry: dict[str, object] = {"converged": post.diagnostics.converged,
-                                    "reason": post.diagnostics.reason,
-                                    "steps": post.diagnostics.steps,
-                                    "max_tau": max(post.diagnostics.autocorr_time.values()),
-                                    "seconds": time.perf_counter() - t0}
-        for key in QUANTITIES:
-            s = post.summary(key)
-            entry[key] = _entry(s["q05"], s["q50"], s["q95"], truth[key])
-        row[name] = entry
-    return row
-
-
-def _entry(q05: float, q50: float, q95: float, truth: float) -> dict[str, object]:
-    return {"q05": q05, "q50": q50, "q95": q95, "covered": bool(q05 <= truth <= q95)}
-
-
-def coverage(rows, noise_model: str, key: str) -> tuple[float, float]:
-    """Fraction of rows whose interval covers the truth, and its binomial standard error."""
-    hits = [r[noise_model][key]["covered"] for r in rows]
-    p = float(np.mean(hits))
-    return p, math.sqrt(max(p * (1 - p), 1e-12) / len(hits))
-
-
-def agreement(rows, noise_model: str, key: str) -> tuple[float, float, float]:
-    """Posterior against least squares where the model is right (issue 17 item 1): the median
-    and largest ``|posterior median - least squares| / least-squares standard error``, and the
-    median ratio of the 90 % interval widths (posterior / least squares)."""
-    shift, width = [], []
-    for r in rows:
-        ls, post = r["least_squares"][key], r[noise_model][key]
-        se = (ls["q95"] - ls["q05"]) / (2 * Z90)
-        shift.append(abs(post["q50"] - ls["q50"]) / se)
-        width.append((post["q95"] - post["q05"]) / (ls["q95"] - ls["q05"]))
-    return float(np.median(shift)), float(np.max(shift)), float(np.median(width))
+from fitstiff._testing.calibration import QUANTITIES, agreement, coverage, score
 
 
 def main() -> None:

@@ -13,8 +13,6 @@ import numpy as np
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-if str(REPO) not in sys.path:   # small versions of the benchmarks run in the suite
-    sys.path.insert(0, str(REPO))
 #: the real O-ring logs (CC0; data/real/oring/SOURCE.md)
 REALDATA = REPO / "data" / "real" / "oring"
 
@@ -55,6 +53,16 @@ def pytest_runtest_teardown(item, nextitem):
 
         jax.clear_caches()
         gc.collect()
+
+
+def run_benchmark(script: str, *args, timeout: float = 900) -> str:
+    """Run ``benchmarks/<script>`` with ``args`` as its own process (as a user runs it: tests
+    never import ``benchmarks/``); its stdout. A failure shows the end of its stderr."""
+    done = subprocess.run([sys.executable, str(REPO / "benchmarks" / script),
+                           *map(str, args)], cwd=REPO, capture_output=True, text=True,
+                          timeout=timeout)
+    assert done.returncode == 0, f"{script} exited {done.returncode}:\n{done.stderr[-3000:]}"
+    return done.stdout
 
 
 def triangle(amplitudes, *, rate=1e-3, fs=1000.0):

@@ -8,7 +8,7 @@ import json
 
 import numpy as np
 import pytest
-from conftest import REALDATA
+from conftest import REALDATA, run_benchmark
 
 from fitstiff._testing.recovery import dataset
 from fitstiff.cli import main
@@ -441,10 +441,8 @@ def test_fit_json_reports_the_marginal_displacement_noise_of_correlated_noise():
 def test_fit_speed_benchmark_runs_small(tmp_path):
     """benchmarks/fit_speed.py once each (a warm fit, a reference fit, a cold and a second
     CLI fit): both fits find the same seal, and its targets are the ratios it states."""
-    from benchmarks import fit_speed
-
     out = tmp_path / "fs.json"
-    fit_speed.main(["--repeats", "1", "--cold-runs", "1", "--json", str(out)])
+    run_benchmark("fit_speed.py", "--repeats", "1", "--cold-runs", "1", "--json", out)
     r = json.loads(out.read_text())
     assert r["fitstiff_converged"] and len(r["cold_cli_runs_s"]) == 1
     assert r["sigma0_fitstiff_N_per_mm"] == pytest.approx(r["sigma0_reference_N_per_mm"],

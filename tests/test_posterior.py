@@ -13,7 +13,7 @@ import warnings
 
 import numpy as np
 import pytest
-from conftest import REPO, polyline
+from conftest import REPO, polyline, run_benchmark
 
 from fitstiff.cli import main
 from fitstiff.errors import InputError
@@ -493,7 +493,7 @@ def test_chain_file_is_an_emcee_backend_and_older_files_still_read(tmp_path):
 def test_calibration_benchmark_runs_small():
     """The calibration machinery on three datasets (the coverage itself needs >= 50: see
     benchmarks/calibration.py)."""
-    from benchmarks import calibration
+    from fitstiff._testing import calibration
 
     rows = [calibration.score(seed, noise_models=("ar1",), walkers=16, steps=100,
                               tau_multiple=50) for seed in range(3)]
@@ -511,10 +511,8 @@ def test_calibration_benchmark_runs_small():
 def test_default_posterior_benchmark_runs_small(tmp_path):
     """benchmarks/posterior_default.py on logs 20 x shorter, without the reference: the CLI
     with default sampler options converges and the summary has what the README quotes."""
-    from benchmarks import posterior_default
-
     out = tmp_path / "pd.json"
-    posterior_default.main(["--scale", "0.05", "--no-reference", "--json", str(out)])
+    run_benchmark("posterior_default.py", "--scale", "0.05", "--no-reference", "--json", out)
     result = json.loads(out.read_text())
     d = result["default"]
     assert result["logs"] == 4 and 1500 < result["samples"] < 2000

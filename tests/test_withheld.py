@@ -10,9 +10,9 @@ import math
 import numpy as np
 import pytest
 
-from benchmarks import withheld as wh
 from fitstiff._testing import rig_sim as rs
 from fitstiff._testing import withheld as datasets
+from fitstiff._testing import withheld_scoring as wh
 from fitstiff.io.log import Rig
 from fitstiff.physics.programs import TriangleCycles
 from fitstiff.physics.simulate import Noise, simulate
@@ -213,8 +213,8 @@ def test_quick_run_of_one_null_and_one_effect_through_the_diagnosis():
     effect = wh.run_dataset("single/viscous/1", short=True, candidates=rate_effects)
     null = wh.run_dataset("null/3", short=True, candidates=rate_effects)
     assert "error" not in effect and "error" not in null, (effect, null)
-    assert effect["accepted"] == ["viscous"], wh._line(effect)
-    assert null["accepted"] == [], wh._line(null)
+    assert effect["accepted"] == ["viscous"], wh.describe(effect)
+    assert null["accepted"] == [], wh.describe(null)
     assert effect["detectability"]["viscous"]["testable"]
     assert effect["sizes"]["viscous"] > effect["detectability"]["viscous"]["size"]
 
@@ -231,7 +231,7 @@ def test_heat_exchange_and_leakage_the_screen_cannot_order_are_told_apart_by_the
         dataset, accepted, top1):
     r = wh.run_dataset(dataset, candidates="heat_transfer,leakage")
     assert "error" not in r, r
-    assert r["accepted"] == accepted and r["top1"] == top1, wh._line(r)
+    assert r["accepted"] == accepted and r["top1"] == top1, wh.describe(r)
 
 
 def test_a_rig_compliance_is_accepted_over_the_maxwell_slip_mimic():
@@ -242,7 +242,7 @@ def test_a_rig_compliance_is_accepted_over_the_maxwell_slip_mimic():
     compliance removes 60 % of the gap, Maxwell-slip 47 %."""
     r = wh.run_dataset("single/rig_compliance/0", candidates="rig_compliance,maxwell_slip")
     assert "error" not in r, r
-    assert r["accepted"] == ["rig_compliance"], wh._line(r)
+    assert r["accepted"] == ["rig_compliance"], wh.describe(r)
 
 
 def test_two_missing_effects_that_fail_alone_are_accepted_together():
@@ -254,5 +254,5 @@ def test_two_missing_effects_that_fail_alone_are_accepted_together():
     r = wh.run_dataset("pair/pressure_friction+inertia/2",
                        candidates="pressure_friction,inertia")
     assert "error" not in r, r
-    assert sorted(r["accepted"]) == ["inertia", "pressure_friction"], wh._line(r)
+    assert sorted(r["accepted"]) == ["inertia", "pressure_friction"], wh.describe(r)
     assert r["shrink"] > 0.3

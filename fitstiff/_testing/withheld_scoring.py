@@ -1,0 +1,232 @@
+"""Scoring of the withheld-effect benchmark (DESIGN §6 step 5, issue 12): which datasets run,
+one dataset diagnosed into a record, and the scores over records (top-1, exact accepted set,
+false alarms with Wilson intervals, shrink, confusion matrix).
+
+``benchmarks/withheld.py`` runs it at full size, resumably and in parallel; the test suite
+runs small versions. The datasets themselves come from :mod:`fitstiff._testing.withheld`.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+import traceback
+from collections.abc import Iterable, Mapping, Sequence
+
+import numpy as np
+
+from fitstiff._testing.withheld import EFFECTS, FAMILIES, MISSING, OUT_OF_LIBRARY, make_dataset
+
+__all__ = ["PAIRS", "dataset_ids", "run_dataset", "wilson", "named", "confusion", "score",
+           "plot_confusion", "describe"]
+
+#: the pairs of the ``pair`` family
+PAIRS = (("viscous", "dwell_stiction"), ("pressure_friction", "inertia"),
+         ("time_delay", "leakage"), ("stribeck", "force_drift"),
+         ("heat_transfer", "maxwell_slip"), ("asymmetry", "viscous"),
+         ("rig_compliance", "dwell_stiction"), ("inertia", "force_drift"))
+
+
+def dataset_ids(*, families: Sequence[str] = FAMILIES, seeds: int = 5, nulls: int = 100,
+                pair_seeds: int = 2, quick: bool = False) -> list[str]:
+    """Dataset ids in run order: families interleaved so a partial run covers them all."""
+    if quick:
+        return ["single/viscous/0", "null/0", "single/dwell_stiction/0", "null/1",
+                "single/time_delay/0", "ool/ripple/0", "missing/dwell_stiction/0", "null/2"]
+    groups: list[list[str]] = []
+    if "single" in families:
+        groups += [[f"single/{e}/{s}" for s in range(seeds)] for e in EFFECTS]
+    if "null" in families and nulls:
+        groups.append([f"null/{s}" for s in range(nulls)])
+    if "ool" in families:
+        groups += [[f"ool/{k}/{s}" for s in range(seeds)] for k in OUT_OF_LIBRARY]
+    if "pair" in families:
+        groups += [[f"pair/{a}+{b}/{s}" for s in range(pair_seeds)] for a, b in PAIRS]
+    if "missing" in families:
+        groups += [[f"missing/{e}/{s}" for s in range(seeds)] for e in MISSING]
+    keyed = [((i + 0.5) / len(g), j, d) for j, g in enumerate(groups) for i, d in enumerate(g)]
+    return [d for _, _, d in sorted(keyed)]
+
+
+def run_dataset(dataset_id: str, rate_scale: float = 1.0, short: bool = False,
+                candidates: str = "all") -> dict[str, object]:
+    """Generate and diagnose one dataset; the record kept in the JSON. ``short`` and
+    ``candidates`` (fewer than all) make the small version of the test suite."""
+    from fitstiff.diagnosis import diagnose
+
+    start = time.perf_counter()
+    try:
+        logs, truth = make_dataset(dataset_id, rate_scale=rate_scale, short=short)
+        sim_s = time.perf_counter() - start
+        d = diagnose(logs, baseline=truth["baseline"], candidates=candidates)
+    except Exception as exc:      # a failure is a result too: keep it, do not stop the run
+        return {"id": dataset_id, "error": f"{type(exc).__name__}: {exc}",
+                "traceback": traceback.format_exc(limit=6),
+                "wall_s": time.perf_counter() - start}
+    wall = time.perf_counter() - start
+    gap = d.gap
+    before, after, noise = (gap["heldout_rms_N"], gap["final_heldout_rms_N"], gap["noise_N"])
+    ranked = [{"effect": c.effect, "p_value": c.p_value, "log_p_value": c.log_p_value,
+               "score": c.score, "dof": c.dof, "accepted": c.accepted,
+               "shrink": c.shrink, "testable": c.testable} for c in d.candidates]
+    return {
+        "id": dataset_id, "family": truth["family"], "baseline": truth["baseline"],
+        "withheld": truth["withheld"], "expected": truth["expected"], "sizes": truth["sizes"],
+        "units": truth["units"], "accepted": list(d.accepted),
+        "top1": d.candidates[0].effect if d.candidates else None,
+        "ranked": ranked[:5],
+        "detectability": {k: dict(v) for k, v in d.detectability.items()
+                          if k in truth["withheld"]},
+        "heldout_rms_before_N": before, "heldout_rms_after_N": after, "noise_N": noise,
+        "shrink": (before - after) / (before - noise) if before > noise else None,
+        "candidate_shrink": {k: d.candidate(k).shrink for k in truth["withheld"]
+                             if k in [c.effect for c in d.candidates]},
+        "unexplained_cells": len(d.unexplained),
+        "baseline_converged": bool(gap["baseline_converged"]),
+        "samples": sum(len(log) for log in logs), "logs": len(logs),
+        "truth": {k: truth[k] for k in ("effects", "out_of_library", "base", "noise",
+                                        "excitation", "logs")},
+        "sim_s": sim_s, "wall_s": wall, "timing_s": dict(d.timing_s),
+    }
+
+
+# ------------------------------------------------------------------------------- scoring
+
+def wilson(k: int, n: int, z: float = 1.959963984540054) -> tuple[float, float]:
+    """Wilson score interval of a proportion ``k / n`` (95 % by default)."""
+    if n == 0:
+        return (0.0, 1.0)
+    p = k / n
+    denom = 1 + z**2 / n
+    centre = (p + z**2 / (2 * n)) / denom
+    half = z * math.sqrt(p * (1 - p) / n + z**2 / (4 * n**2)) / denom
+    return (max(0.0, centre - half), min(1.0, centre + half))
+
+
+def _rate(k: int, n: int) -> dict[str, object]:
+    low, high = wilson(k, n)
+    return {"k": k, "n": n, "rate": k / n if n else None, "wilson95": [low, high]}
+
+
+def named(record: Mapping[str, object]) -> str:
+    """The effect a dataset's diagnosis names: its first accepted effect, or ``none``."""
+    return record["accepted"][0] if record.get("accepted") else "none"
+
+
+def confusion(records: Iterable[Mapping[str, object]]) -> tuple[list[str], list[str],
+                                                                 np.ndarray]:
+    """Rows: the true effect of single-effect datasets, ``none`` for nulls and
+    ``out-of-library``; columns: the first named effect or ``none``. Returns
+    ``(rows, cols, counts)``."""
+    recs = [r for r in records if "error" not in r
+            and r["family"] in ("single", "null", "ool")]
+    truth = [r["withheld"][0] if r["family"] == "single" else
+             "none" if r["family"] == "null" else "out-of-library" for r in recs]
+    said = [named(r) for r in recs]
+    rows = [e for e in EFFECTS if e in truth] + [t for t in ("none", "out-of-library")
+                                                 if t in truth]
+    cols = [e for e in EFFECTS if e in said or e in truth] + ["none"]
+    counts = np.zeros((len(rows), len(cols)), dtype=int)
+    for t, s in zip(truth, said):
+        counts[rows.index(t), cols.index(s)] += 1
+    return rows, cols, counts
+
+
+def score(records: Mapping[str, Mapping[str, object]]) -> dict[str, object]:
+    """All the benchmark's scores from the dataset records."""
+    recs = [r for r in records.values() if "error" not in r]
+    by = {f: [r for r in recs if r["family"] == f] for f in FAMILIES}
+    single = by["single"]
+    out: dict[str, object] = {"datasets": len(records),
+                              "errors": sum("error" in r for r in records.values())}
+    top1 = sum(r["top1"] == r["withheld"][0] for r in single)
+    exact = sum(r["accepted"] == r["withheld"] for r in single)
+    out["single"] = {"top1": _rate(top1, len(single)), "exact": _rate(exact, len(single)),
+                     "found": _rate(sum(r["withheld"][0] in r["accepted"] for r in single),
+                                    len(single))}
+    per_effect = {}
+    for e in EFFECTS:
+        rs_ = [r for r in single if r["withheld"][0] == e]
+        if not rs_:
+            continue
+        per_effect[e] = {"n": len(rs_), "top1": sum(r["top1"] == e for r in rs_),
+                         "exact": sum(r["accepted"] == [e] for r in rs_),
+                         "named": [named(r) for r in rs_],
+                         "sizes": [r["sizes"][e] for r in rs_],
+                         "detectable": [r["detectability"].get(e, {}).get("size")
+                                        for r in rs_]}
+    out["single"]["per_effect"] = per_effect
+    shrinks = [r["shrink"] for r in single if r["shrink"] is not None
+               and r["withheld"][0] in r["accepted"]]
+    out["single"]["median_shrink_found"] = float(np.median(shrinks)) if shrinks else None
+    all_shrinks = [r["shrink"] for r in single if r["shrink"] is not None]
+    out["single"]["median_shrink_all"] = float(np.median(all_shrinks)) if all_shrinks else None
+    nulls = by["null"]
+    out["null"] = {"false_alarm": _rate(sum(bool(r["accepted"]) for r in nulls), len(nulls)),
+                   "named": sorted({e for r in nulls for e in r["accepted"]})}
+    ool = by["ool"]
+    out["ool"] = {"unexplained": _rate(sum(not r["accepted"] for r in ool), len(ool)),
+                  "unexplained_cells_reported": sum(r["unexplained_cells"] > 0 for r in ool),
+                  "named": [named(r) for r in ool]}
+    pairs = by["pair"]
+    out["pair"] = {"both_found": _rate(sum(set(r["withheld"]) <= set(r["accepted"])
+                                           for r in pairs), len(pairs)),
+                   "one_found": _rate(sum(bool(set(r["withheld"]) & set(r["accepted"]))
+                                          for r in pairs), len(pairs))}
+    missing = by["missing"]
+    out["missing"] = {
+        "not_testable": _rate(sum(r["detectability"].get(r["withheld"][0], {})
+                                  .get("testable") is False for r in missing), len(missing)),
+        "nothing_named": _rate(sum(not r["accepted"] for r in missing), len(missing))}
+    # detectability calibration: effects at or above the reported detectable size
+    above = below = found_above = found_below = 0
+    for r in single:
+        e = r["withheld"][0]
+        det = r["detectability"].get(e, {})
+        if not det.get("testable") or det.get("size") is None:
+            continue
+        if r["sizes"][e] >= abs(det["size"]):
+            above += 1
+            found_above += e in r["accepted"]
+        else:
+            below += 1
+            found_below += e in r["accepted"]
+    out["detectability"] = {"above": _rate(found_above, above),
+                            "below": _rate(found_below, below)}
+    walls = [r["wall_s"] for r in recs]
+    out["wall_s"] = {"median": float(np.median(walls)) if walls else None,
+                     "total": float(np.sum(walls))}
+    rows, cols, counts = confusion(recs)
+    out["confusion"] = {"rows": rows, "cols": cols, "counts": counts.tolist()}
+    return out
+
+
+def plot_confusion(ax, rows: Sequence[str], cols: Sequence[str], counts: np.ndarray, *,
+                   title: str = "withheld effect -> named effect"):
+    """Confusion matrix on ``ax``: counts per row (true effect) normalised to shares for the
+    colour, the counts written in the cells."""
+    counts = np.asarray(counts)
+    share = counts / np.maximum(counts.sum(axis=1, keepdims=True), 1)
+    ax.imshow(share, cmap="Blues", vmin=0, vmax=1, aspect="auto")
+    for i in range(counts.shape[0]):
+        for j in range(counts.shape[1]):
+            if counts[i, j]:
+                ax.text(j, i, str(counts[i, j]), ha="center", va="center", fontsize=7,
+                        color="white" if share[i, j] > 0.6 else "black")
+    ax.set_xticks(range(len(cols)), cols, rotation=60, ha="right", fontsize=7)
+    ax.set_yticks(range(len(rows)), rows, fontsize=7)
+    ax.set_xlabel("named by the diagnosis (first accepted)")
+    ax.set_ylabel("withheld")
+    ax.set_title(title, fontsize=9)
+    return ax
+
+
+def describe(r: Mapping[str, object]) -> str:
+    """One line of a record: id, right or not, accepted, top-1, held-out RMS, sizes, time."""
+    if "error" in r:
+        return f"{r['id']:<40} ERROR {r['error']}"
+    ok = ("ok" if r["accepted"] == r["expected"] else "--")
+    sizes = " ".join(f"{k}={v:.3g}" for k, v in r["sizes"].items())
+    return (f"{r['id']:<40} {ok} accepted {r['accepted']} top1 {r['top1']} "
+            f"{r['heldout_rms_before_N']:.3g}->{r['heldout_rms_after_N']:.3g} N "
+            f"(noise {r['noise_N']:.3g}) {sizes} {r['wall_s']:.0f} s")
