@@ -13,7 +13,8 @@ from fitstiff._testing.speed import make_log
 from fitstiff.inference.closed_series import MAX_TERMS, ClosedFormLikelihood, taylor_terms
 from fitstiff.inference.fitting import fit_problem
 from fitstiff.inference.likelihood import AR1, Gaussian, Layout, StudentT, TurningPoints
-from fitstiff.inference.posterior import LogPosterior, _integrated, _prepared, _Coordinates
+from fitstiff.inference.posterior import LogPosterior
+from fitstiff.inference.posterior.density import _Coordinates, _integrated, _prepared
 from fitstiff.inference.priors import Priors
 from fitstiff.inference.problem import Problem, ResidualSeries
 

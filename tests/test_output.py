@@ -329,7 +329,7 @@ def test_concurrent_posteriors_second_is_refused_first_completes(tmp_path, capsy
         if first.poll() is None:
             first.send_signal(signal.SIGKILL)
     assert first.returncode == 0, stderr
-    from fitstiff.inference.chain import ChainBackend
+    from fitstiff.inference.posterior.chain import ChainBackend
 
     assert ChainBackend(out / "chain.h5", read_only=True).iteration == 200
     assert not (out / LOCK_NAME).exists()

@@ -17,7 +17,7 @@ from conftest import REPO, polyline, run_benchmark
 
 from fitstiff.cli import main
 from fitstiff.errors import InputError
-from fitstiff.inference.chain import ChainBackend, ChainStore
+from fitstiff.inference.posterior.chain import ChainBackend, ChainStore
 from fitstiff.inference.likelihood import (AR1, Gaussian, Layout, LinearNuisances, StudentT,
                                            TurningPoints)
 from fitstiff.inference.posterior import sample_posterior
@@ -548,7 +548,7 @@ def test_posterior_that_contradicts_least_squares_says_the_model_is_wrong():
     import types
 
     from fitstiff.inference.fitting import fit
-    from fitstiff.inference.posterior import _disagreements
+    from fitstiff.inference.posterior.sampler import _disagreements
     from fitstiff.io.log import Rig
     from fitstiff.physics.programs import TriangleCycles
     from fitstiff.physics.simulate import Noise, simulate

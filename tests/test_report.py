@@ -211,15 +211,15 @@ def test_log_table_shows_the_regulated_pressure_a_log_carries():
     import numpy as np
 
     from fitstiff.io.log import Log, Rig
-    from fitstiff.present.report import _pressure_cell
+    from fitstiff.present.report.text import pressure_cell
 
     x = np.linspace(0.0, 1e-3, 50)
     regulated = Log("r", displacement=x, force=np.zeros(50), time=np.arange(50) * 0.01,
                     pressure_a=np.full(50, 101325.0 + 3.0e5), rig=Rig())
-    assert _pressure_cell(regulated, None) == "regulated A 3"
-    assert _pressure_cell(regulated, 6e5) == "6"
+    assert pressure_cell(regulated, None) == "regulated A 3"
+    assert pressure_cell(regulated, 6e5) == "6"
     bare = Log("b", displacement=x, force=np.zeros(50), time=np.arange(50) * 0.01)
-    assert _pressure_cell(bare, None) == "n/a"
+    assert pressure_cell(bare, None) == "n/a"
 
 
 def test_friction_against_pressure_and_the_seal_alone(demo):

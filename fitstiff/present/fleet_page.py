@@ -342,19 +342,21 @@ def _distribution_figure(per: pd.DataFrame, population: Mapping):
 
 def _outlier_part(per, population, reading, manifest):
     """The ranked outlier table (HTML) and the loops figure (or ``None``)."""
-    from fitstiff.present.report import ReportFigure, _p, _table
+    from fitstiff.present.report import ReportFigure
+    from fitstiff.present.report.text import html_table, paragraph
 
     outliers = sorted(population["outliers"], key=lambda o: (
         o.get("q_value") if o.get("q_value") is not None else math.inf))
     q = population["q"]
     if not outliers:
-        return _p(f"No cylinder is an outlier at a false-discovery rate of {100 * q:g} %."), None
+        return paragraph(f"No cylinder is an outlier at a false-discovery rate of "
+                         f"{100 * q:g} %."), None
     rows = [[str(k + 1), o["cylinder"], _sizes(o.get("size", {})), _q(o.get("q_value"))]
             for k, o in enumerate(outliers)]
-    text = (_p(f"{len(outliers)} cylinder{'s' if len(outliers) > 1 else ''} outlying at a "
+    text = (paragraph(f"{len(outliers)} cylinder{'s' if len(outliers) > 1 else ''} outlying at a "
                f"false-discovery rate of {100 * q:g} %, most improbable first; the size is "
                "the cylinder's estimate against the population mean.")
-            + _table(["rank", "cylinder", "size against the population mean", "q-value"],
+            + html_table(["rank", "cylinder", "size against the population mean", "q-value"],
                      rows, numeric_from=3, prose=(2,)))
     shown = outliers[:MAX_OUTLIERS_SHOWN]
     typical = _typical(per, population)
@@ -382,20 +384,21 @@ def _outlier_part(per, population, reading, manifest):
 
 def _drift_part(table, population):
     """A sentence (HTML) and the drift figure (or ``None``)."""
-    from fitstiff.present.report import ReportFigure, _p
+    from fitstiff.present.report import ReportFigure
+    from fitstiff.present.report.text import paragraph
 
     q = population["q"]
     counts = table.groupby("cylinder")["run_index"].transform("count")
     multi = table[counts > 1]
     drift = population["drift"]
     if multi.empty:
-        return _p("Every cylinder was logged in one run: there is no drift to test."), None
+        return paragraph("Every cylinder was logged in one run: there is no drift to test."), None
     flagged = list(dict.fromkeys(n for d in drift for n in d.get("quantities", ())
                                  if n in table))
     quantities = (flagged or [n for n in ("breakaway_N", *population["quantities"])
                               if n in table][:1])[:_MAX_DRIFT_PANELS]
     if not quantities:
-        return _p("No quantity to draw over the runs."), None
+        return paragraph("No quantity to draw over the runs."), None
     fig = Figure(figsize=(6.2 * min(len(quantities), 2), 3.7 * math.ceil(len(quantities) / 2)),
                  layout="constrained")
     axes = fig.subplots(math.ceil(len(quantities) / 2), min(len(quantities), 2),
@@ -411,12 +414,12 @@ def _drift_part(table, population):
         ax.set_visible(False)
     n_multi = multi["cylinder"].nunique()
     if drift:
-        text = _p(f"{len(drift)} of the {n_multi} cylinders logged in several runs drift at "
+        text = paragraph(f"{len(drift)} of the {n_multi} cylinders logged in several runs drift at "
                   f"a false-discovery rate of {100 * q:g} %: "
                   + "; ".join(f"{d['cylinder']} ({_sizes(d.get('per_run', {}), per_run=True)}"
                               f", {_q(d.get('q_value'))})" for d in drift) + ".")
     else:
-        text = _p(f"None of the {n_multi} cylinders logged in several runs drifts at a "
+        text = paragraph(f"None of the {n_multi} cylinders logged in several runs drifts at a "
                   f"false-discovery rate of {100 * q:g} % (drawn: {_label(quantities[0])[0]}).")
     caption = ("Each flagged quantity over the runs, relative to each cylinder's first run: "
                "the drifting cylinders in colour, the other cylinders with several runs in "
@@ -523,7 +526,9 @@ def write_fleet_report(directory: str | Path, *, out: str | Path | None = None) 
         InputError: the directory lacks ``population.json`` or ``manifest.json``, or one of
             its files cannot be read.
     """
-    from fitstiff.present.report import FIGURES, REPORT, REPORT_MANIFEST, _CSS, _p, _render
+    from fitstiff.present.report import FIGURES, REPORT, REPORT_MANIFEST
+    from fitstiff.present.report.page import CSS, render_figure
+    from fitstiff.present.report.text import paragraph
 
     directory = Path(directory)
     table, population, manifest = _read(directory)
@@ -541,7 +546,7 @@ def write_fleet_report(directory: str | Path, *, out: str | Path | None = None) 
         outlier_html, outlier_fig = _outlier_part(per, population, reading, manifest)
         drift_html, drift_fig = _drift_part(table, population)
         sections = [("Distributions", "" if distributions else
-                     _p("No quantity has a population (fewer than two usable cylinders)."),
+                     paragraph("No quantity has a population (fewer than two usable cylinders)."),
                      distributions),
                     ("Outliers", outlier_html, outlier_fig),
                     ("Drift over runs", drift_html, drift_fig)]
@@ -549,9 +554,9 @@ def write_fleet_report(directory: str | Path, *, out: str | Path | None = None) 
         for _, _, fig in sections:
             if fig is None:
                 continue
-            png = _render(fig.figure, "png")
+            png = render_figure(fig.figure, "png")
             target.write_bytes(f"{FIGURES}/{fig.name}.png", png)
-            target.write_bytes(f"{FIGURES}/{fig.name}.svg", _render(fig.figure, "svg"))
+            target.write_bytes(f"{FIGURES}/{fig.name}.svg", render_figure(fig.figure, "svg"))
             images[fig.name] = base64.b64encode(png).decode("ascii")
         status, details, headline = _verdict(table, population)
         created = datetime.now(timezone.utc).isoformat(timespec="seconds")
@@ -559,7 +564,7 @@ def write_fleet_report(directory: str | Path, *, out: str | Path | None = None) 
             "<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
             '<meta name="viewport" content="width=device-width, initial-scale=1">',
             f"<title>Fleet: {html.escape(directory.name)}</title>"
-            f"<style>{_CSS}{_CSS_EXTRA}</style></head><body>",
+            f"<style>{CSS}{_CSS_EXTRA}</style></head><body>",
             f"<h1>Fleet: {html.escape(directory.name)}</h1>",
             f'<p class="meta">{html.escape(str(directory))} &middot; '
             f"{html.escape(str(manifest.get('command', '')))} &middot; model "

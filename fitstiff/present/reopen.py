@@ -40,9 +40,9 @@ import numpy as np
 
 from fitstiff._jax import jax, jnp
 from fitstiff.errors import InputError
-from fitstiff.inference.chain import CHAIN, ChainStore
 from fitstiff.inference.fitting import FitResult
 from fitstiff.inference.posterior import PREDICTIVE, Posterior, PosteriorRecord
+from fitstiff.inference.posterior.chain import CHAIN, ChainStore
 from fitstiff.inference.problem import NUISANCES, PROBLEM_OPTIONS, Problem
 from fitstiff.io.loading import load_logs
 from fitstiff.io.log import Log

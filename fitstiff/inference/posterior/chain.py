@@ -2,10 +2,10 @@
 run must match.
 
 With ``backend`` (a path) :func:`fitstiff.inference.posterior.sample_posterior` hands emcee's
-sampler a :class:`ChainBackend`: an :class:`emcee.backends.Backend`, the interface the sampler writes and
-reads through (``reset``, ``grow``, ``save_step``; ``iteration``, ``shape``, ``accepted``,
-``random_state``, ``get_chain``, ``get_log_prob``, ``get_last_sample``), with storage of
-fitstiff's own. The steps are written in batches at most a second apart (opening the file for
+sampler a :class:`ChainBackend`: an :class:`emcee.backends.Backend`, the interface the sampler
+writes and reads through (``reset``, ``grow``, ``save_step``; ``iteration``, ``shape``,
+``accepted``, ``random_state``, ``get_chain``, ``get_log_prob``, ``get_last_sample``), with storage
+of fitstiff's own. The steps are written in batches at most a second apart (opening the file for
 every step costs more than a step of a small problem), and at once when the run is interrupted.
 :class:`ChainStore` adds a :func:`signature` of the problem (model, names, data hash, noise
 model, priors, walkers), the estimated noise settings and the least-squares optimum.
