@@ -334,7 +334,7 @@ def test_values_at_a_bound_or_beyond_the_data_are_flagged():
     the polytropic exponent at 1.0, where the data were made) says so; a breakaway force far
     above every measured force is called an extrapolation. An effect at its null (c = 0) is
     an absent effect, not a warning."""
-    from fitstiff.inference.fitting import _implausible
+    from fitstiff.inference.fitting.summary import _implausible
 
     rig = Rig.from_mapping({"bore_mm": 32, "stroke_mm": 700, "start_position_mm": 100,
                             "supply_bar": 6})
@@ -377,16 +377,14 @@ def test_fit_json_reads_back_to_the_fitted_theta():
     assert data["per_log"][0]["closing_pressure_bar"] != logs[2].rig.supply_pressure / 1e5
 
 
-def test_the_memory_lean_path_gives_the_fit_of_the_default_one(monkeypatch):
+def test_the_memory_lean_path_gives_the_fit_of_the_default_one():
     """A Jacobian beyond LEAN_JACOBIAN_MB switches to the normal-equations solve and the
-    column-at-a-time summary (benchmarks/fit_memory.py: 1 M samples in 923 MB); forced here
-    on a small joint fit, it lands on the same optimum with the same standard errors."""
-    import fitstiff.inference.fitting as fitting
-
+    column-at-a-time summary (benchmarks/fit_memory.py: 1 M samples in 923 MB); asked for
+    on a small joint fit (``solver="lm-normal"``, which takes both lean paths), it lands on
+    the same optimum with the same standard errors."""
     logs, _, _ = dataset("dahl", 5)
     default = fit(logs[:2], "chamber+dahl")
-    monkeypatch.setattr(fitting, "LEAN_JACOBIAN_MB", 0.0)
-    lean = fit(logs[:2], "chamber+dahl")
+    lean = fit(logs[:2], "chamber+dahl", solver="lm-normal")
     assert default.solver == "lm" and lean.solver == "lm-normal"
     assert default.converged and lean.converged
     for name, p in default.parameters().items():
@@ -402,8 +400,9 @@ def test_the_summary_shares_its_jacobian_with_the_turning_point_columns():
     from the residuals' forward pass; both equal what the lean path computes apart
     (_eiv_gram, one JVP and VJP per parameter) and what per_log predicts. Calibration dataset
     0 has AR(1) displacement noise: its turning points' errors are not zero."""
-    import fitstiff.inference.fitting as fitting
     from fitstiff._testing.calibration import dataset as calibration_dataset
+    from fitstiff.inference import fitting
+    from fitstiff.inference.fitting import summary as fitting_summary
     from fitstiff.inference.problem import Problem
 
     logs, _ = calibration_dataset(0)
@@ -411,10 +410,11 @@ def test_the_summary_shares_its_jacobian_with_the_turning_point_columns():
     theta = problem.pack(*fitting.initial_guess(problem))
     spans = tuple(tuple((s.span.start, s.span.stop) for s in problem.residual_series()
                         if s.log == i) for i in range(problem.n_logs))
-    shared = problem.compiled(fitting._summary_evaluate, spans=spans, sequential=False)(theta)
-    apart = problem.compiled(fitting._summary_evaluate, spans=spans, sequential=True)(theta)
+    evaluate = fitting_summary._summary_evaluate
+    shared = problem.compiled(evaluate, spans=spans, sequential=False)(theta)
+    apart = problem.compiled(evaluate, spans=spans, sequential=True)(theta)
     assert apart.eiv_gram is None
-    gram = np.asarray(problem.compiled(fitting._eiv_gram)(theta))
+    gram = np.asarray(problem.compiled(fitting_summary._eiv_gram)(theta))
     assert np.abs(gram).max() > 0
     np.testing.assert_allclose(np.asarray(shared.eiv_gram), gram, rtol=1e-10,
                                atol=1e-12 * np.abs(gram).max())
