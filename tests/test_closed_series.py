@@ -83,7 +83,7 @@ def test_closed_form_likelihood_equals_the_residuals_one(bench_log, noise, integ
     fit = fit_problem(problem)
     closed, plain, coordinates = _pair(problem, noise, np.asarray(fit.theta),
                                        integrate=integrate)
-    assert len(problem._groups) == 1 and closed.closed.expansion.series.size == 4
+    assert len(problem.groups) == 1 and closed.closed.expansion.series.size == 4
     # with the offsets integrated out: theirs and every series' sum of squares
     assert closed.blobs == (2 + 6 if integrate else 0)
     _agree(closed, plain, coordinates)

@@ -218,9 +218,9 @@ def test_logs_denoised_and_left_as_measured_fit_together():
 def test_logs_of_very_different_length_run_in_their_own_stacks():
     """Logs are stacked (one vmap-ed scan) and padded to the longest of their stack; a log
     shorter than PAD_RATIO x the longest gets its own stack. The residuals per log are the same
-    whatever the stacking (only the order of the series in the vector follows the stacks)."""
-    from fitstiff.inference import problem as problem_module
+    whatever the stacking: in a stack of two, alone, or alone in a problem of its own."""
     from fitstiff.inference.problem import Problem
+    from fitstiff.inference.stacking import length_buckets
 
     rig = Rig(bore=0.032, rod=0.0, stroke=0.7, start_position=0.35, supply_pressure=5e5)
     logs = [simulate("chamber+dahl", TriangleCycles(amplitudes_mm=(0.2, 1.0), rate_mm_s=rate),
@@ -228,24 +228,16 @@ def test_logs_of_very_different_length_run_in_their_own_stacks():
             for k, rate in enumerate((4.0, 1.0, 1.1))]
     lengths = [len(log) for log in logs]
     assert lengths[0] < 0.5 * lengths[1] and lengths[2] > 0.7 * lengths[1]
-    assert problem_module._length_buckets([0, 1, 2], lengths) == [[1, 2], [0]]
+    assert length_buckets([0, 1, 2], lengths) == [[1, 2], [0]]
+    assert length_buckets([0, 1, 2], lengths, pad_ratio=0.0) == [[0, 1, 2]]
     split = Problem(logs, "chamber+dahl")
-    assert [g.index for g in split._groups] == [(1, 2), (0,)]
+    assert [g.index for g in split.groups] == [(1, 2), (0,)]
     theta = split.pack(split.model, {"offset": [0.1, 0.2, 0.3]})
     per_log = split.per_log(theta)
-    original = problem_module.PAD_RATIO
-    try:
-        problem_module.PAD_RATIO = 0.0
-        one = Problem(logs, "chamber+dahl")
-    finally:
-        problem_module.PAD_RATIO = original
-    assert [g.index for g in one._groups] == [(0, 1, 2)]
-    for a, b in zip(per_log, one.per_log(one.pack(one.model, {"offset": [0.1, 0.2, 0.3]}))):
-        np.testing.assert_allclose(a["force"], b["force"], rtol=1e-12, atol=1e-12)
-    r_split, r_one = np.asarray(split.residuals(theta)), np.asarray(one.residuals(theta))
-    assert r_split.size < r_one.size                 # less padding
-    np.testing.assert_allclose(np.sort(r_split[r_split != 0]), np.sort(r_one[r_one != 0]),
-                               rtol=1e-12)
+    for i, log in enumerate(logs):
+        alone = Problem([log], "chamber+dahl")
+        own = alone.per_log(alone.pack(split.model, {"offset": [0.1 * (i + 1)]}))[0]
+        np.testing.assert_allclose(per_log[i]["force"], own["force"], rtol=1e-12, atol=1e-12)
 
 
 def _friction_only_logs(tmp_path, n=2):

@@ -265,15 +265,15 @@ def test_log_volume_span_of_a_hand_made_drive():
 
 
 def test_stacked_drives_share_the_widest_span():
-    from fitstiff.inference.problem import _same_closed_forms
+    from fitstiff.inference.stacking import same_closed_forms
 
     t, x = triangle([1e-3])
     drive = make_drive(displacement=x, time=t)
-    spans = [d.log_volume_span for d in _same_closed_forms(
+    spans = [d.log_volume_span for d in same_closed_forms(
         [dataclasses.replace(drive, log_volume_span=2.0**-8),
          dataclasses.replace(drive, log_volume_span=2.0**-6)])]
     assert spans == [2.0**-6, 2.0**-6]
-    spans = [d.log_volume_span for d in _same_closed_forms(
+    spans = [d.log_volume_span for d in same_closed_forms(
         [dataclasses.replace(drive, log_volume_span=2.0**-8), drive])]
     assert drive.log_volume_span is None and spans == [None, None]
 
@@ -281,7 +281,7 @@ def test_stacked_drives_share_the_widest_span():
 def test_drive_log_volume_ratios_follow_its_displacement(paper_rig):
     """A drive's cached log volume ratios are the chamber's logs of its displacement, padded
     with it; a moved drive drops them and the chamber follows the new displacement."""
-    from fitstiff.inference.problem import _pad_drive
+    from fitstiff.inference.stacking import pad_drive
     from fitstiff.physics.terms.chamber import Chamber
 
     t, x = triangle([1e-3, 2e-3])
@@ -292,7 +292,7 @@ def test_drive_log_volume_ratios_follow_its_displacement(paper_rig):
         np.testing.assert_allclose(np.asarray(cached), np.asarray(computed), rtol=1e-14,
                                    atol=1e-18)
         assert float(jnp.max(jnp.abs(cached))) <= drive.log_volume_span
-    padded = _pad_drive(drive, len(drive) + 50)
+    padded = pad_drive(drive, len(drive) + 50)
     for cached, computed in zip(padded.log_volume_ratios,
                                 Chamber.log_ratios(padded, padded.displacement + 0.0)):
         np.testing.assert_allclose(np.asarray(cached), np.asarray(computed), rtol=1e-14,
@@ -321,7 +321,7 @@ def test_turning_point_columns_see_the_chamber_through_the_moved_drive():
     cached = TurningPoints.at(problem, theta, layout).columns
     object.__setattr__(problem, "_groups", [
         dataclasses.replace(g, drive=dataclasses.replace(g.drive, log_volume_ratios=None))
-        for g in problem._groups])
+        for g in problem.groups])
     object.__setattr__(problem, "_compiled", {})
     computed = TurningPoints.at(problem, theta, layout).columns
     assert cached.shape == computed.shape and cached.shape[1] > 0
@@ -336,7 +336,7 @@ def test_the_benchmark_log_takes_the_series():
     from fitstiff.physics.terms.chamber import series_terms
 
     problem = Problem([make_log()], "chamber+dahl")
-    span = problem._groups[0].drive.log_volume_span
+    span = problem.groups[0].drive.log_volume_span
     assert span is not None and series_terms(span) is not None
 
 # -- Dahl over monotone runs -------------------------------------------------------------------

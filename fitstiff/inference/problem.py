@@ -19,13 +19,10 @@ compile time does not grow with the number of logs; padded samples carry zero we
 
 from __future__ import annotations
 
-import collections
 import copy
 import dataclasses
 import functools
-import inspect
 import math
-import threading
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import NamedTuple
 
@@ -34,11 +31,12 @@ import numpy as np
 
 from fitstiff._jax import jax, jnp
 from fitstiff.errors import InputError
+from fitstiff.inference.compiling import compile_for, compiled_batch, fingerprint
+from fitstiff.inference.stacking import Group, build_groups, same_structure
 from fitstiff.io.guards import check_logs
 from fitstiff.io.log import Log
 from fitstiff.physics.drive import Drive, drive_from_log
-from fitstiff.physics.model import (Model, build_model, difference_acceleration, model_needs,
-                                    time_steps)
+from fitstiff.physics.model import (Model, build_model, model_needs)
 from fitstiff.physics.params import (CONSTANT_JACOBIAN, Param, Parameterization, find_param,
                                      named_params)
 from fitstiff.physics.terms import Chamber, FrictionBase
@@ -46,7 +44,6 @@ from fitstiff.segments.denoise import (chatters, denoise_displacement, reversal_
                                        segment_velocity, smooth_acceleration, smooth_force,
                                        turning_points)
 from fitstiff.segments.segmentation import REGIONS, Segmentation, estimate_noise, segment
-from fitstiff.signal.monotone import pad_runs
 from fitstiff.signal.noise import marginal_scale, noise_floor
 
 __all__ = ["Problem", "compiled_batch", "NUISANCES", "OPTIONAL_NUISANCES", "PROBLEM_OPTIONS",
@@ -70,9 +67,6 @@ NUISANCES = tuple(NUISANCE_PARAMS)
 PROBLEM_OPTIONS = ("denoise", "sample_range", "weights", "skip", "free", "exclude")
 #: nuisances held unless asked for with ``free``
 OPTIONAL_NUISANCES = ("closing_pressure",)
-#: a log shorter than this times the longest of its stack is run in a stack of its own
-#: (``benchmarks/posterior_default.py``: four logs of 3 200-12 800 samples)
-PAD_RATIO = 0.7
 #: the observed channels of a log, in the order of the residual vector
 CHANNELS = ("force", "pressure_a", "pressure_b")
 _DEFAULT_CLOSING_PA = 5e5      # gauge start value when neither rig nor log says more
@@ -93,18 +87,6 @@ class ResidualSeries(NamedTuple):
     channel: str      # "force", "pressure_a" or "pressure_b"
     span: slice       # its entries of the residual vector (padded length, in time order)
     mask: np.ndarray  # (len,) bool: samples with weight > 0 (the others are exactly 0)
-
-
-class _Group(eqx.Module):
-    """Logs with one static structure, padded and stacked for one vmap-ed scan (a pytree:
-    :meth:`Problem.compiled` passes its arrays to compiled functions as arguments)."""
-
-    index: tuple[int, ...] = eqx.field(static=True)   # positions of the logs in Problem.logs
-    drive: Drive                 # stacked: leaves have a leading log axis
-    force: jnp.ndarray           # (L, N) measured force
-    weight: jnp.ndarray          # (L, N) 1/sigma_F * sample weight (0 on padding)
-    pressure: tuple              # per chamber: (L, N) measured abs pressure or None
-    pressure_weight: tuple       # per chamber: (L, N) 1/sigma_p (0 on padding) or None
 
 
 class Problem:
@@ -175,7 +157,7 @@ class Problem:
                                                 acceleration=None if a is None
                                                 else jnp.asarray(a))
             self.drives.append(drive)
-        self.drives = _same_structure(self.drives)
+        self.drives = same_structure(self.drives)
         built = build_model(model, drives=self.drives) if isinstance(model, str) else model
         force_noise = [channel_noise(log.force) for log in self.logs]
         if any(t.needs_measured_force for t in built.terms):
@@ -209,7 +191,8 @@ class Problem:
             for log in self.logs]
         self.sample_weights = [self._weights(log, seg, sample_range, weights, skip, exclude)
                                for log, seg in zip(self.logs, self.segmentations)]
-        self._groups = self._build_groups()
+        self._groups = build_groups(self.drives, self.logs, self.sample_weights, self.force_noise,
+                                    self.pressure_noise)
         self._compiled: dict[tuple, Callable] = {}
         self._reversal_noise: tuple | None = None
         self.n_data = int(sum(int(np.count_nonzero(np.asarray(g.weight))) + sum(
@@ -266,38 +249,11 @@ class Problem:
                              "widen --range or lower --skip")
         return w
 
-    def _build_groups(self) -> list[_Group]:
-        """Logs of one structure (chamber modes, observed channels, time) are stacked and run
-        as one ``vmap``-ed scan, padded to the longest; logs much shorter than the longest
-        start their own stack (:data:`PAD_RATIO`), so padding wastes little work."""
-        keys: dict[tuple, list[int]] = {}
-        for i, d in enumerate(self.drives):
-            keys.setdefault((d.modes, d.observed, d.has_time), []).append(i)
-        stacks = [bucket for index in keys.values()
-                  for bucket in _length_buckets(index, [len(d) for d in self.drives])]
-        groups = []
-        for index in stacks:
-            n_max = max(len(self.drives[i]) for i in index)
-            drives = _same_closed_forms([_pad_drive(self.drives[i], n_max) for i in index])
-            stacked = jax.tree.map(lambda *xs: jnp.stack(xs), *drives)
-            force = np.stack([_pad(self.logs[i].force, n_max) for i in index])
-            weight = np.stack([_pad(self.sample_weights[i], n_max, fill=0.0)
-                               / self.force_noise[i] for i in index])
-            pressures, pressure_weights = [], []
-            for c, chamber in enumerate(("a", "b")):
-                if not self.drives[index[0]].observed[c]:
-                    pressures.append(None)
-                    pressure_weights.append(None)
-                    continue
-                attr = f"pressure_{chamber}"
-                pressures.append(jnp.asarray(np.stack(
-                    [_pad(getattr(self.logs[i], attr), n_max) for i in index])))
-                pressure_weights.append(jnp.asarray(np.stack(
-                    [_pad(self.sample_weights[i] > 0, n_max, fill=0.0).astype(float)
-                     / self.pressure_noise[i][chamber] for i in index])))
-            groups.append(_Group(tuple(index), stacked, jnp.asarray(force), jnp.asarray(weight),
-                                 tuple(pressures), tuple(pressure_weights)))
-        return groups
+    @property
+    def groups(self) -> tuple:
+        """The stacks the logs run in (:class:`~fitstiff.inference.stacking.Group`: each a
+        ``vmap``-ed scan over logs of one structure, padded to its longest)."""
+        return tuple(self._groups)
 
     # -- the flat vector ------------------------------------------------------------------
     @property
@@ -461,7 +417,7 @@ class Problem:
         object.__setattr__(self, "_reversal_noise", tuple(out))     # computed once, on demand
         return self._reversal_noise
 
-    def _group_drive(self, group: _Group, nuisances, displacement=None):
+    def _group_drive(self, group: Group, nuisances, displacement=None):
         idx = jnp.asarray(group.index)
         drive = group.drive
         if displacement is not None:
@@ -606,41 +562,7 @@ class Problem:
         """
         key = (fn, tuple(sorted(options.items())))
         if key not in self._compiled:
-            bound = functools.partial(fn, **options) if options else fn
-            # the problem's arrays are split from its static structure once, not per call:
-            # ``jax.jit`` over the array leaves and the arguments' arrays dispatches in about
-            # 13 us against 51 us for ``equinox.filter_jit`` re-partitioning the problem
-            # (a posterior step calls one function of about 1 ms)
-            data, structure = eqx.partition(self._arrays(), eqx.is_array)
-            # and flattened once: a flat list of arrays is flattened in C++ per call, the
-            # problem's modules in Python (about 80 us of a 1 ms posterior call)
-            leaves, tree = jax.tree.flatten(data)
-            shared = _shareable(fn) and self.structure_key(leaves, tree, structure)
-            with _SHARED_LOCK:
-                jitted = _SHARED.get((key, shared)) if shared else None
-            if jitted is None:
-                def run(leaves, arg_data, arg_static):
-                    problem = _CALLER.problem
-                    arrays = eqx.combine(jax.tree.unflatten(tree, leaves), structure)
-                    return bound(problem._with_arrays(arrays),
-                                 *eqx.combine(arg_data, arg_static))
-
-                jitted = jax.jit(run, static_argnums=2)
-                if shared:
-                    _share((key, shared), jitted)
-
-            def call(*args):
-                caller = getattr(_CALLER, "problem", None)
-                _CALLER.problem = self       # the problem a (re)trace reads its structure off
-                try:
-                    if all(isinstance(a, (np.ndarray, jax.Array)) for a in args):
-                        return jitted(leaves, args, (None,) * len(args))
-                    arg_data, arg_static = eqx.partition(args, eqx.is_array)
-                    return jitted(leaves, arg_data, arg_static)
-                finally:
-                    _CALLER.problem = caller
-
-            self._compiled[key] = call
+            self._compiled[key] = compile_for(self, fn, options)
         return self._compiled[key]
 
     def structure_key(self, leaves=None, tree=None, structure=None) -> tuple | None:
@@ -651,10 +573,10 @@ class Problem:
         each was denoised. Two problems with equal keys share compiled functions
         (:meth:`compiled`); a fleet batches cylinders of one key (:mod:`fitstiff.fleet`)."""
         if leaves is None:
-            data, structure = eqx.partition(self._arrays(), eqx.is_array)
+            data, structure = eqx.partition(self.data_arrays(), eqx.is_array)
             leaves, tree = jax.tree.flatten(data)
-        static = _fingerprint(structure)
-        model = _fingerprint(self.model)
+        static = fingerprint(structure)
+        model = fingerprint(self.model)
         if static is None or model is None:
             return None
         return (tree, tuple((np.shape(a), np.dtype(a.dtype).str) for a in leaves), static,
@@ -662,84 +584,20 @@ class Problem:
                 tuple(sorted(self.fixed_nuisances)), self.has_friction,
                 tuple(len(log) for log in self.logs), tuple(self.denoised))
 
-    def _arrays(self):
+    def data_arrays(self):
+        """The arrays a compiled function receives as arguments (:meth:`compiled`): the
+        stacked groups, the drives and the turning points' errors."""
         # a drive's name labels messages only: problems that differ in their logs' names
         # alone share compiled functions (:meth:`structure_key`)
         drives = [dataclasses.replace(d, name="") if d.name else d for d in self.drives]
         return self._groups, drives, self.reversal_noise()
 
-    def _with_arrays(self, arrays) -> Problem:
+    def with_data_arrays(self, arrays) -> Problem:
         """A copy whose data arrays are ``arrays`` (the traced arguments of :meth:`compiled`)."""
         bound = copy.copy(self)
         for name, value in zip(("_groups", "drives", "_reversal_noise"), arrays):
             object.__setattr__(bound, name, value)
         return bound
-
-
-def compiled_batch(problems: Sequence[Problem], fn: Callable, /, *, lanes: int | None = None,
-                   **options) -> Callable:
-    """``fn(problem, *args, **options)`` for each of ``problems`` at once, as one ``vmap``-ed,
-    compiled call ``f(*args)`` whose arguments and results carry a leading problem axis.
-
-    The problems must share one :meth:`Problem.structure_key` (a fleet's cylinders of one
-    structure; :mod:`fitstiff.fleet`): their data arrays are stacked and ``fn`` is traced
-    once, with the first problem's structure. ``lanes`` (at least ``len(problems)``) fixes
-    the batch the executable is compiled for: the call pads the stack with copies of the last
-    problem and drops their results, so one executable serves every batch of up to ``lanes``
-    problems and a problem's lane computes the same bits whichever problems share its call.
-    The executable is shared like :meth:`Problem.compiled`'s.
-    """
-    problems = list(problems)
-    if not problems:
-        raise ValueError("compiled_batch needs at least one problem")
-    lanes = lanes or len(problems)
-    if lanes < len(problems):
-        raise ValueError(f"lanes={lanes} is fewer than the {len(problems)} problems")
-    first = problems[0]
-    data, structure = eqx.partition(first._arrays(), eqx.is_array)
-    leaves, tree = jax.tree.flatten(data)
-    key = first.structure_key(leaves, tree, structure)
-    stacks = [leaves]
-    for p in problems[1:]:
-        if p.structure_key() != key or key is None:
-            raise ValueError("compiled_batch: the problems differ in structure "
-                             "(Problem.structure_key); batch only problems of one structure")
-        stacks.append(jax.tree.flatten(eqx.partition(p._arrays(), eqx.is_array)[0])[0])
-    pad = lanes - len(problems)
-    stacks += [stacks[-1]] * pad
-    stacked = [jnp.stack(xs) for xs in zip(*stacks)]
-    shared = ((("lanes", lanes), fn, tuple(sorted(options.items()))), key) \
-        if _shareable(fn) and key is not None else None
-    with _SHARED_LOCK:
-        jitted = _SHARED.get(shared) if shared else None
-    if jitted is None:
-        bound = functools.partial(fn, **options) if options else fn
-
-        def run(stacked, args):
-            template = _CALLER.problem
-
-            def one(leaves, *lane_args):
-                arrays = eqx.combine(jax.tree.unflatten(tree, leaves), structure)
-                return bound(template._with_arrays(arrays), *lane_args)
-
-            return jax.vmap(one)(stacked, *args)
-
-        jitted = jax.jit(run)
-        if shared:
-            _share(shared, jitted)
-
-    def call(*args):
-        args = tuple(jnp.concatenate([a, jnp.repeat(a[-1:], pad, axis=0)]) if pad else a
-                     for a in (jnp.asarray(a) for a in args))
-        caller = getattr(_CALLER, "problem", None)
-        _CALLER.problem = first
-        try:
-            out = jitted(stacked, args)
-        finally:
-            _CALLER.problem = caller
-        return jax.tree.map(lambda x: x[:len(problems)], out) if pad else out
-
-    return call
 
 
 def _segmentations(logs: Sequence[Log], given: Sequence[Segmentation] | None
@@ -761,129 +619,3 @@ def _segmentations(logs: Sequence[Log], given: Sequence[Segmentation] | None
     return given
 
 
-def _length_buckets(index: Sequence[int], lengths: Sequence[int]) -> list[list[int]]:
-    """``index`` cut into stacks of similar length: longest first, a log shorter than
-    :data:`PAD_RATIO` times its stack's longest starts the next stack (in log order within)."""
-    order = sorted(index, key=lambda i: -lengths[i])
-    stacks: list[list[int]] = []
-    for i in order:
-        if stacks and lengths[i] >= PAD_RATIO * lengths[stacks[-1][0]]:
-            stacks[-1].append(i)
-        else:
-            stacks.append([i])
-    return [sorted(stack) for stack in stacks]
-
-
-def _pad(a, n: int, *, fill: float | None = None) -> np.ndarray:
-    a = np.asarray(a, dtype=float)
-    if a.shape[0] == n:
-        return a
-    value = a[-1] if fill is None else fill
-    return np.concatenate([a, np.full(n - a.shape[0], value)])
-
-
-def _pad_drive(drive: Drive, n: int) -> Drive:
-    """Extend a drive to ``n`` samples by holding the last state (time keeps ticking)."""
-    m = len(drive)
-    if m == n:
-        return dataclasses.replace(drive, name="") if drive.name else drive
-    dt = float(drive.time[-1] - drive.time[-2]) if m > 1 else 1.0
-    time = np.concatenate([np.asarray(drive.time), float(drive.time[-1]) + dt * np.arange(1, n - m + 1)])
-    return dataclasses.replace(
-        drive, name="", time=jnp.asarray(time),
-        displacement=jnp.asarray(_pad(drive.displacement, n)),
-        pressure_a=jnp.asarray(_pad(drive.pressure_a, n)),
-        pressure_b=jnp.asarray(_pad(drive.pressure_b, n)),
-        still=jnp.asarray(_pad(drive.still, n)),
-        velocity=None if drive.velocity is None else jnp.asarray(_pad(drive.velocity, n,
-                                                                       fill=0.0)),
-        acceleration=(None if drive.acceleration is None
-                      else jnp.asarray(_pad(drive.acceleration, n, fill=0.0))),
-        measured_force=(None if drive.measured_force is None
-                        else jnp.asarray(_pad(drive.measured_force, n))),
-        runs=(None if drive.runs is None
-              else pad_runs(drive.runs, n, int(drive.runs.before.shape[0]))),
-        log_volume_ratios=(None if drive.log_volume_ratios is None
-                           else tuple(jnp.asarray(_pad(r, n)) for r in drive.log_volume_ratios)))
-
-
-def _same_closed_forms(drives: list[Drive]) -> list[Drive]:
-    """Drives of one stack (one length) with one structure for the closed forms (a stack is
-    one ``vmap``-ed evaluation): runs of one count, or none when one of them has none; the
-    widest chamber span, or none (nor log volume ratios) when one of them has none."""
-    spans = [d.log_volume_span for d in drives]
-    span = None if None in spans else max(spans)
-    count = (None if any(d.runs is None for d in drives)
-             else max(int(d.runs.before.shape[0]) for d in drives))
-    return [dataclasses.replace(d, runs=None if count is None else pad_runs(d.runs, len(d), count),
-                                log_volume_span=span,
-                                log_volume_ratios=None if span is None else d.log_volume_ratios)
-            for d in drives]
-
-
-def _same_structure(drives: list[Drive]) -> list[Drive]:
-    """Drives that all carry a velocity (and acceleration) when one does.
-
-    ``denoise="auto"`` denoises only the logs whose displacement is noisy, and logs of one
-    length are stacked into a batch; a log left as measured gets the difference quotients
-    the model would take itself (the same values), so the batch has one structure.
-    """
-    out = list(drives)
-    for field in ("velocity", "acceleration"):
-        if not any(getattr(d, field) is not None for d in out):
-            continue
-        for k, d in enumerate(out):
-            if getattr(d, field) is not None:
-                continue
-            dt, dt_mid = time_steps(d.time)
-            x = d.displacement
-            v = d.velocity if d.velocity is not None else jnp.diff(x, prepend=x[0]) / dt
-            value = v if field == "velocity" else difference_acceleration(v, dt_mid)
-            out[k] = dataclasses.replace(d, **{field: jnp.asarray(value)})
-    return out
-
-
-#: functions compiled for one structure, shared by the problems of that structure
-#: (:meth:`Problem.compiled`); the oldest is dropped beyond :data:`_SHARED_MAX`
-_SHARED: collections.OrderedDict[tuple, Callable] = collections.OrderedDict()
-_SHARED_MAX = 64
-#: the problem whose call is running a shared compiled function (per thread): a trace reads
-#: its static structure off it
-_CALLER = threading.local()
-
-
-_SHARED_LOCK = threading.Lock()     # the diagnosis compiles from two threads
-
-
-def _share(key: tuple, jitted: Callable) -> None:
-    """Keep ``jitted`` for ``key``, the oldest dropped beyond :data:`_SHARED_MAX` (a function
-    still held by a problem stays usable; only new problems compile it again)."""
-    with _SHARED_LOCK:
-        _SHARED[key] = jitted
-        _SHARED.move_to_end(key)
-        while len(_SHARED) > _SHARED_MAX:
-            _SHARED.popitem(last=False)
-
-
-def _shareable(fn) -> bool:
-    """Whether compilations of ``fn`` may be shared between problems: a module-level function
-    (a bound method or a closure is one object per problem or per call)."""
-    return inspect.isfunction(fn) and "<locals>" not in fn.__qualname__
-
-
-def _fingerprint(tree) -> tuple | None:
-    """A hashable image of a pytree's structure and leaf values (arrays by their bytes), or
-    ``None`` when a leaf cannot be hashed."""
-    leaves, treedef = jax.tree.flatten(tree)
-    out = []
-    for leaf in leaves:
-        if isinstance(leaf, (np.ndarray, jax.Array)):
-            a = np.asarray(leaf)
-            out.append((a.shape, a.dtype.str, a.tobytes()))
-            continue
-        try:
-            hash(leaf)
-        except TypeError:
-            return None
-        out.append((type(leaf), leaf))
-    return (treedef, tuple(out))
