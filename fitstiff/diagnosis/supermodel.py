@@ -173,7 +173,7 @@ class SuperProblem:
         baseline: the baseline spec (``"chamber+dahl"``).
         candidates: effect names (:func:`candidate_names`).
         problem_kw: options of :class:`~fitstiff.inference.problem.Problem` (denoise, sample_range,
-        ...).
+            ...).
     """
 
     def __init__(self, logs: Sequence[Log], baseline: str, candidates: Sequence[str],
