@@ -23,6 +23,7 @@ from fitstiff.physics.model import build_model
 from fitstiff.physics.params import Parameterization
 from fitstiff.physics.stiffness import chamber_stiffness
 from fitstiff.present import plotting
+from fitstiff.segments.segmentation import REGIONS
 
 IMAGE_TOLERANCE = 5.0
 """RMS pixel difference (0..255) allowed: a rerun gives 0, text rendering of another FreeType a
@@ -244,7 +245,7 @@ def test_sliding_friction_level_is_half_the_gap_between_directions(ex):
     # a friction square wave plus an offset and a spring: only the friction survives
     force = (level * seg.direction + 7.0 + 2000.0 * ex.log.displacement)
     sliding = seg.region == 1
-    assert plotting.REGIONS[1] == "sliding" and sliding.any()
+    assert REGIONS[1] == "sliding" and sliding.any()
     got = plotting.sliding_friction_level(force, seg)
     spring = 2000.0 * ex.log.displacement
     expected = 0.5 * abs(np.median((level + 7 + spring)[sliding & (seg.direction == 1)])
