@@ -16,12 +16,13 @@ from fitstiff.cli.fit import FIT
 from fitstiff.cli.posterior import PLANNED
 from fitstiff.data import fig4_logs
 from fitstiff.io.output import OutputDir
+from fitstiff.physics.model import DEFAULT_MODEL
 from fitstiff.present.report import PLANNED as REPORT_PLANNED
 from fitstiff.present.report import REPORT, REPORT_MANIFEST, write_report
 
 __all__ = ["add_parser", "run", "MODEL", "CHAINS"]
 
-MODEL = "chamber+dahl"
+MODEL = DEFAULT_MODEL
 CHAINS: dict[str, dict[str, int]] = {
     "default": {"steps": 6000, "check_every": 250, "draws": 100},
     "quick": {"steps": 120, "check_every": 60, "draws": 20},

@@ -15,6 +15,7 @@ from fitstiff.cli.fit import add_data_arguments, problem_options
 from fitstiff.diagnosis import ALPHA, HELDOUT, MIN_SHRINK, RESULT, diagnose
 from fitstiff.diagnosis.supermodel import CANDIDATES
 from fitstiff.io.output import OutputDir, to_jsonable
+from fitstiff.physics.model import DEFAULT_MODEL
 
 __all__ = ["add_parser", "run"]
 
@@ -28,7 +29,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                     "diagnosis.json and a manifest.")
     add_log_arguments(parser)
     group = parser.add_argument_group("diagnosis")
-    group.add_argument("--baseline", default="chamber+dahl", metavar="SPEC", type=model_spec,
+    group.add_argument("--baseline", default=DEFAULT_MODEL, metavar="SPEC", type=model_spec,
                        help="the model whose gap is diagnosed (default chamber+dahl)")
     group.add_argument("--candidates", default="all", metavar="all|LIST",
                        help="'all' or a comma-separated list of: " + ", ".join(CANDIDATES))

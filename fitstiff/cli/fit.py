@@ -13,7 +13,7 @@ from fitstiff.inference.fitting import SOLVERS, fit
 from fitstiff.inference.problem import OPTIONAL_NUISANCES
 from fitstiff.io.output import OutputDir, to_jsonable
 from fitstiff.io.validation import parse_decimal
-from fitstiff.physics.model import parse_fix
+from fitstiff.physics.model import DEFAULT_MODEL, parse_fix
 from fitstiff.segments.segmentation import REGIONS
 
 __all__ = ["add_parser", "run", "fit_options", "add_data_arguments",
@@ -21,7 +21,6 @@ __all__ = ["add_parser", "run", "fit_options", "add_data_arguments",
 
 FIT = "fit.json"
 COMPARE = "compare.json"
-DEFAULT_MODEL = "chamber+dahl"
 _MAX_WEIGHT = 1e6     # relative region weights beyond this are a typo, not a choice
 
 

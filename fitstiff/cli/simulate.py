@@ -20,6 +20,7 @@ from fitstiff.cli._common import add_out_argument, model_spec
 from fitstiff.errors import InputError
 from fitstiff.io.log import RIG_KEYS, Rig
 from fitstiff.io.output import OutputDir
+from fitstiff.physics.model import DEFAULT_MODEL
 from fitstiff.physics.programs import (PAUSE_AT, NestedLoops, Pause, Program, Ramp, SineSweep,
                                        TriangleCycles)
 from fitstiff.physics.simulate import DEFAULT_RATE_HZ, Noise, format_log, simulate
@@ -70,7 +71,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                "--set sigma0=40 --set Fc=18 --program triangle --out sim/",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    parser.add_argument("--model", default="chamber+dahl", metavar="SPEC", type=model_spec,
+    parser.add_argument("--model", default=DEFAULT_MODEL, metavar="SPEC", type=model_spec,
                         help="model spec, terms joined by '+' (default chamber+dahl)")
     parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                         dest="values",

@@ -33,6 +33,7 @@ from fitstiff.diagnosis.supermodel import SuperProblem, candidate_names
 from fitstiff.errors import InputError
 from fitstiff.inference.comparison import TIE
 from fitstiff.io.log import Log
+from fitstiff.physics.model import DEFAULT_MODEL
 from fitstiff.physics.params import to_display
 from fitstiff.physics.terms import TERMS
 from fitstiff.signal.noise import noise_floor
@@ -61,7 +62,7 @@ _STEP_FACTORS = (4.0, 16.0, 64.0)
 _BOUND = 1e-3
 
 
-def diagnose(logs: Sequence[Log], *, baseline: str = "chamber+dahl",
+def diagnose(logs: Sequence[Log], *, baseline: str = DEFAULT_MODEL,
              candidates: str | Sequence[str] = "all", alpha: float = ALPHA,
              min_shrink: float = MIN_SHRINK, **problem_kw) -> Diagnosis:
     """Diagnose the gap between ``baseline`` and the logs.

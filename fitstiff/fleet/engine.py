@@ -35,6 +35,7 @@ from fitstiff.fleet.population import DEFAULT_Q, population
 from fitstiff.fleet.source import Unit, discover, input_hash
 from fitstiff.fleet.work import BASE_COLUMNS, Settings, fit_units
 from fitstiff.io.output import write_atomic
+from fitstiff.physics.model import DEFAULT_MODEL
 
 __all__ = ["fit_fleet", "WORKER_ENV", "CACHE_DIR", "FIT_OPTIONS", "default_workers"]
 
@@ -126,7 +127,7 @@ def _run_dask(chunks, settings, done, *, keys: list[str], workers: int | None,
             cluster.close()
 
 
-def fit_fleet(source: str | os.PathLike | Sequence[Unit], *, model: str = "chamber+dahl",
+def fit_fleet(source: str | os.PathLike | Sequence[Unit], *, model: str = DEFAULT_MODEL,
               fix: Mapping[str, float | None] | None = None,
               reading: Mapping[str, object] | None = None,
               workers: int | None = None, scheduler: str | None = None,

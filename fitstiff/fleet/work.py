@@ -23,6 +23,7 @@ from collections.abc import Mapping, Sequence
 
 from fitstiff.errors import InputError
 from fitstiff.fleet.source import Unit, input_hash
+from fitstiff.physics.model import DEFAULT_MODEL
 
 __all__ = ["Settings", "fit_units", "BASE_COLUMNS", "column_name"]
 
@@ -46,7 +47,7 @@ class Settings:
         diagnose: also run :func:`fitstiff.diagnose` on each unit (baseline ``model``).
     """
 
-    model: str = "chamber+dahl"
+    model: str = DEFAULT_MODEL
     fix: Mapping[str, float | None] = dataclasses.field(default_factory=dict)
     fit: Mapping[str, object] = dataclasses.field(default_factory=dict)
     reading: Mapping[str, object] = dataclasses.field(default_factory=dict)

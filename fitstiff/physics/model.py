@@ -31,7 +31,11 @@ from fitstiff.physics.terms import (TERMS, Chamber, ForceSource, InputTerm, Modi
                                     SeriesTerm, Step, Term)
 
 __all__ = ["Model", "Needs", "Prediction", "build_model", "parse_spec", "model_for_logs",
-           "model_needs", "parse_fix"]
+           "model_needs", "parse_fix", "DEFAULT_MODEL"]
+
+#: the model of the paper's cylinder and every command's default: the chamber's gas spring and a
+#: Dahl pre-sliding spring
+DEFAULT_MODEL = "chamber+dahl"
 
 _NEWTON_STEPS = 4
 

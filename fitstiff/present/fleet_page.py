@@ -611,7 +611,7 @@ def cylinder_report(directory: str | Path, cylinder: str, *, run: str | None = N
     """
     from fitstiff.inference.fitting import fit
     from fitstiff.io.loading import load_logs
-    from fitstiff.physics.model import parse_fix
+    from fitstiff.physics.model import DEFAULT_MODEL, parse_fix
     from fitstiff.present.report import write_report
 
     directory = Path(directory)
@@ -638,7 +638,7 @@ def cylinder_report(directory: str | Path, cylinder: str, *, run: str | None = N
         raise InputError(str(directory), f"--cylinder {cylinder}", f"failed in the fleet: "
                          f"{row['error']}", "fix its logs and run the fleet again")
     options = dict(manifest.get("options") or {})
-    model = options.get("model") or "chamber+dahl"
+    model = options.get("model") or DEFAULT_MODEL
     fix_items = list(options.get("fix") or [])
     fit_options = {k: options[k] for k in ("solver", "starts", "seed", "max_steps", "denoise",
                                            "weights", "skip", "free")
