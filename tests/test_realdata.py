@@ -204,7 +204,7 @@ def test_a_folds_heldout_rms_on_the_seal_logs_does_not_depend_on_its_start():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("bar", [pytest.param(bar, marks=() if bar == 3 else pytest.mark.heavy)
+@pytest.mark.parametrize("bar", [pytest.param(bar, marks=pytest.mark.heavy)
                                  for bar in sorted(SAMPLES)])
 def test_diagnosis_of_one_log_holds_out_blocks_of_loops_and_names_nothing(bar):
     """Issue 12, the one-log case: a single pressure, held out by blocks of loops. Within one
@@ -221,7 +221,7 @@ def test_diagnosis_of_one_log_holds_out_blocks_of_loops_and_names_nothing(bar):
     assert result.gap["final_heldout_rms_N"] == result.gap["heldout_rms_N"]
 
 
-@pytest.mark.slow
+@pytest.mark.heavy     # about 50 s alone; the suite keeps the fits of the synthetic sets
 def test_lugre_on_the_seal_logs_converges_and_its_breakaway_is_flagged():
     """Issue 17 item 3: LuGre on the four O-ring logs used to stop at the 400-step cap, printed
     as not converged: its initial friction states walk towards their bounds while the cost
@@ -242,7 +242,7 @@ def test_lugre_on_the_seal_logs_converges_and_its_breakaway_is_flagged():
     assert 5.5 < values["Fc"]["value"] < 7.0          # the sliding level the Dahl fit finds
 
 
-@pytest.mark.slow
+@pytest.mark.heavy     # about 90 s alone; tests/test_fitting.py compares on synthetic logs
 def test_compare_ranks_pressure_friction_first_and_keeps_every_models_estimates(tmp_path):
     """Issue 17 item 2 on the O-ring logs: --compare with a Maxwell-slip spec (whose held-out
     fits crashed on an unordered slip-displacement vector) ranks by held-out RMS, puts
