@@ -45,7 +45,7 @@ import numpy as np
 import pandas as pd
 
 import fitstiff
-from fitstiff.inference.chain import ChainStore
+from fitstiff.inference.posterior.chain import ChainStore
 from fitstiff.present import plotting
 
 warnings.filterwarnings("ignore", message="IProgress not found")   # tqdm, no progress bar here
