@@ -4,9 +4,10 @@ O-ring log), posterior, diagnose, report of each, stiffness - is run with each t
 (``PYTHONPATH=TREE python -m fitstiff ...``, the persistent compilation cache off) and every
 file written is compared.
 
-Compared as written, less what names the tree or the clock: the output directory's path,
-``*_utc`` stamps and wall times in JSON (``timing_s``, ``seconds``, ...), the hashes in the
-manifests (each file is compared itself), matplotlib's random ids in SVG files, and the
+Compared as written, less what names the tree or the clock: the tree's and the output
+directory's paths,
+``*_utc`` stamps and wall times in JSON (``timing_s``, ``seconds``, ...), a report's "made"
+time, the hashes in the manifests (each file is compared itself), matplotlib's random ids in SVG files, and the
 creation attributes of ``posterior.nc`` (its groups are compared as data).
 
     python benchmarks/same_outputs.py --before /path/to/old/clone --after .
@@ -48,7 +49,8 @@ RUNS = (
     ("stiffness", ["stiffness", "--bore-mm", "32", "--stroke-mm", "700", "--position-mm", "350",
                    "--supply-bar", "6", "--json"]),
 )
-_CLOCK_KEYS = re.compile(r".*_utc|elapsed_s|wall_s|seconds|timing_s|duration_s|compile_s")
+_CLOCK_KEYS = re.compile(r".*_utc|elapsed_s|wall_s|seconds|timing_s|duration_s|compile_s|sha256")
+_TIME = re.compile(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d(\.\d+)?(\+00:00|Z)?")
 _SVG_IDS = re.compile(r"\b([pm]|image)[0-9a-f]{10}\b")
 _HASH = re.compile(r"[0-9a-f]{64}")
 
@@ -79,16 +81,19 @@ def _strip(value, *, manifest: bool):
     return value
 
 
-def normalised(path: Path, root: Path):
-    """What of ``path`` must be the same in both trees."""
+def normalised(path: Path, root: Path, tree: Path):
+    """What of ``path`` (written under ``root`` by ``tree``'s code) must be the same in both
+    trees."""
     raw = path.read_bytes()
     try:
         text = raw.decode()
     except UnicodeDecodeError:
         return raw
-    text = text.replace(str(root), "<OUT>")
+    text = text.replace(str(root), "<OUT>").replace(str(tree), "<TREE>")
     if path.suffix == ".svg":
         return _SVG_IDS.sub(r"\1<ID>", text)
+    if path.suffix == ".html":
+        return _TIME.sub("<TIME>", text)
     if path.suffix == ".json":
         try:
             return json.dumps(_strip(json.loads(text), manifest=path.name.endswith(
@@ -112,8 +117,9 @@ def _same_netcdf(a: Path, b: Path) -> bool:
     return True
 
 
-def compare(a: Path, b: Path) -> dict[str, list[str]]:
-    """``same``, ``different``, ``only_before``, ``only_after``: relative paths."""
+def compare(a: Path, b: Path, *, trees: tuple[Path, Path]) -> dict[str, list[str]]:
+    """``same``, ``different``, ``only_before``, ``only_after``: relative paths (``a`` written
+    by ``trees[0]``, ``b`` by ``trees[1]``)."""
     fa = {p.relative_to(a) for p in a.rglob("*") if p.is_file()}
     fb = {p.relative_to(b) for p in b.rglob("*") if p.is_file()}
     out = {"same": [], "different": [], "only_before": sorted(map(str, fa - fb)),
@@ -122,7 +128,8 @@ def compare(a: Path, b: Path) -> dict[str, list[str]]:
         if rel.suffix == ".nc":
             same = _same_netcdf(a / rel, b / rel)
         else:
-            same = normalised(a / rel, a) == normalised(b / rel, b)
+            same = (normalised(a / rel, a, trees[0])
+                    == normalised(b / rel, b, trees[1]))
         out["same" if same else "different"].append(str(rel))
     return out
 
@@ -137,7 +144,8 @@ def main(argv=None) -> int:
         for label, tree in (("before", args.before), ("after", args.after)):
             print(f"running {label} ({tree.resolve()}) ...", flush=True)
             run_all(tree.resolve(), Path(tmp) / label)
-        result = compare(Path(tmp) / "before", Path(tmp) / "after")
+        result = compare(Path(tmp) / "before", Path(tmp) / "after",
+                         trees=(args.before.resolve(), args.after.resolve()))
     print(f"{len(result['same'])} files the same, {len(result['different'])} different, "
           f"{len(result['only_before'])} only before, {len(result['only_after'])} only after")
     for key in ("different", "only_before", "only_after"):
