@@ -285,7 +285,7 @@ cap the gap is first order in $u$.
 
 The paper's Fig. 4 plots force over displacement for triangle cycles of growing amplitude:
 nested hysteresis loops whose tips show the steep pre-sliding curve after every reversal. We
-simulate that experiment with `fitstiff.physics.simulate` on the paper's cylinder (32 mm bore,
+simulate that experiment with `fitstiff.simulate` on the paper's cylinder (32 mm bore,
 rodless, 700 mm stroke, closed at mid-stroke at 6 bar gauge) with the model `chamber+dahl`:
 the gas spring with $n = 1.4$ and a Dahl seal of $\sigma_0 = 40$ N/mm and $F_c = 18$ N
 (DESIGN §1.2). Triangle cycles of 0.05, 0.1, 0.2, 0.5 and 1 mm at 1 mm/s, logged at 200 Hz
