@@ -75,7 +75,8 @@ def _save(path: Path, records: Mapping[str, Mapping[str, object]], figure: bool)
 
 
 def run_many(ids: Sequence[str], *, workers: int = 2, rate_scale: float = 1.0,
-             max_crashes: int = 2) -> Iterable[dict[str, object]]:
+             max_crashes: int = 2, residuals: Path | None = None
+             ) -> Iterable[dict[str, object]]:
     """Diagnose ``ids`` in a pool of ``workers`` processes, a fresh process per dataset
     (compiled code does not pile up; a crash loses one dataset, not the run). A dataset
     whose worker died ``max_crashes`` times is recorded as an error."""
@@ -85,7 +86,8 @@ def run_many(ids: Sequence[str], *, workers: int = 2, rate_scale: float = 1.0,
     while pending:
         with cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx,
                                     max_tasks_per_child=1) as pool:
-            futures = {pool.submit(run_dataset, d, rate_scale): d for d in pending}
+            futures = {pool.submit(run_dataset, d, rate_scale, residuals=residuals): d
+                       for d in pending}
             try:
                 for f in cf.as_completed(futures):
                     r = f.result()
@@ -116,6 +118,8 @@ def main(argv: Sequence[str] | None = None) -> None:
                         help="only the datasets that withhold one of these (nulls are kept)")
     parser.add_argument("--json", type=Path, default=JSON_PATH)
     parser.add_argument("--no-figure", action="store_true")
+    parser.add_argument("--residuals", type=Path, default=None, metavar="DIR",
+                        help="keep each dataset's held-out residuals in DIR (one .npz each)")
     args = parser.parse_args(argv)
     records: dict[str, dict] = {}
     if args.json.exists():
@@ -131,7 +135,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     print(f"{len(ids)} datasets, {len(ids) - len(todo)} done, {len(todo)} to run "
           f"with {args.workers} worker(s)", flush=True)
     start = time.perf_counter()
-    for r in run_many(todo, workers=args.workers, rate_scale=args.rate_scale):
+    for r in run_many(todo, workers=args.workers, rate_scale=args.rate_scale,
+                      residuals=args.residuals):
         records[r["id"]] = r
         print(describe(r), flush=True)
         _save(args.json, records, not args.no_figure)

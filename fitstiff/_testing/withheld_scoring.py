@@ -12,6 +12,7 @@ import math
 import time
 import traceback
 from collections.abc import Iterable, Mapping, Sequence
+from pathlib import Path
 
 import numpy as np
 
@@ -49,9 +50,11 @@ def dataset_ids(*, families: Sequence[str] = FAMILIES, seeds: int = 5, nulls: in
 
 
 def run_dataset(dataset_id: str, rate_scale: float = 1.0, short: bool = False,
-                candidates: str = "all") -> dict[str, object]:
+                candidates: str = "all", residuals: Path | None = None) -> dict[str, object]:
     """Generate and diagnose one dataset; the record kept in the JSON. ``short`` and
-    ``candidates`` (fewer than all) make the small version of the test suite."""
+    ``candidates`` (fewer than all) make the small version of the test suite. ``residuals``:
+    a folder to keep the held-out residuals in (``heldout.npz`` content, one
+    ``<id with / as __>.npz`` per dataset), to study them without diagnosing again."""
     from fitstiff.diagnosis import diagnose
 
     start = time.perf_counter()
@@ -64,6 +67,10 @@ def run_dataset(dataset_id: str, rate_scale: float = 1.0, short: bool = False,
                 "traceback": traceback.format_exc(limit=6),
                 "wall_s": time.perf_counter() - start}
     wall = time.perf_counter() - start
+    if residuals is not None:
+        Path(residuals).mkdir(parents=True, exist_ok=True)
+        np.savez(Path(residuals) / (dataset_id.replace("/", "__") + ".npz"),
+                 **d.heldout_arrays())
     gap = d.gap
     before, after, noise = (gap["heldout_rms_N"], gap["final_heldout_rms_N"], gap["noise_N"])
     ranked = [{"effect": c.effect, "p_value": c.p_value, "log_p_value": c.log_p_value,
