@@ -49,6 +49,25 @@ rig_compliance     ``compliance`` m/N: piston ``u = x_sensor - C F``
 maxwell_slip       ``k`` N/m, ``delta`` m per element (slip force ``k delta``), beside the Dahl
 chamber            (present or not: the ``dahl`` baseline's withheld effect)
 =================  ===========================================================================
+
+Out of the library (``out_of_library``; none of them is a fitstiff term):
+
+=====================  =======================================================================
+ripple                 ``amplitude`` N, ``wavelength`` m, ``phase``: a force
+                       ``A sin(2 pi x / wavelength + phase)`` of the absolute position ``x``
+tight_spot             ``gain``, ``centre`` m, ``width`` m: friction level
+                       ``1 + gain exp(-((x - centre) / width)^2 / 2)`` (a narrow bore)
+friction_drift         ``gain``, ``tau`` s: friction level ``1 + gain (1 - exp(-t / tau))``
+                       over each log's time (warm-up, or wear-in)
+saturating_pressure    ``p_sat`` Pa: friction level ``(1 - exp(-p / p_sat)) / (1 - exp(-p_ref
+                       / p_sat))`` of the supply gauge pressure ``p`` (the seal's contact
+                       saturates; not the library's exponential law)
+rate_stiffness         ``gamma``, ``v_ref`` m/s: presliding stiffness factor
+                       ``(max(|v|, v_ref / 20) / v_ref)^gamma`` (a rate-dependent seal)
+load_cell_hysteresis   ``width`` N, ``span`` N: the force channel lags the force (Dahl-like
+                       in force)
+force_quantisation     ``step`` N: the force channel is rounded to ``step``
+=====================  =======================================================================
 """
 
 from __future__ import annotations
@@ -244,6 +263,12 @@ def simulate_log(program: Program, *, base: Base, effects: Mapping[str, Mapping[
     k_ms = np.asarray(ms["k"], float) if ms else np.zeros(0)
     w_ms = k_ms * np.asarray(ms["delta"], float) if ms else np.zeros(0)
     f_ms = np.zeros(k_ms.size)
+    ool = {k: dict(v) for k, v in out_of_library.items()}
+    tight, warm = ool.get("tight_spot"), ool.get("friction_drift")
+    rate_k = ool.get("rate_stiffness")
+    if "saturating_pressure" in ool:
+        p_sat = ool["saturating_pressure"]["p_sat"]
+        level_p *= (-math.expm1(-base.supply / p_sat)) / (-math.expm1(-p_ref / p_sat))
 
     N = xs.size
     u = np.empty(N)          # piston displacement
@@ -304,6 +329,13 @@ def simulate_log(program: Program, *, base: Base, effects: Mapping[str, Mapping[
             if not junction:
                 level *= 1.0 + (dwell["gain"] * (1.0 - math.exp(-t_dwell / dwell["tau"]))
                                 * math.exp(-travel / dwell["decay"]))
+        if tight:
+            level *= 1.0 + tight["gain"] * math.exp(
+                -0.5 * ((base.x0 + uu - tight["centre"]) / tight["width"]) ** 2)
+        if warm:
+            level *= 1.0 + warm["gain"] * -math.expm1(-(t[j] - t[0]) / warm["tau"])
+        if rate_k:
+            slope *= (max(abs(vs_), rate_k["v_ref"] / 20.0) / rate_k["v_ref"]) ** rate_k["gamma"]
         sig, fcl = sigma0 * slope, Fc * level
         # piston increment (rig compliance in differential form)
         if comp and dxs != 0.0:
@@ -357,7 +389,6 @@ def simulate_log(program: Program, *, base: Base, effects: Mapping[str, Mapping[
     if visc or mass:
         vel = np.gradient(u, dt)
         F = F + visc * vel + (mass * np.gradient(vel, dt) if mass else 0.0)
-    ool = {k: dict(v) for k, v in out_of_library.items()}
     if "ripple" in ool:
         r = ool["ripple"]
         F = F + r["amplitude"] * np.sin(2 * np.pi * (base.x0 + u) / r["wavelength"] + r["phase"])

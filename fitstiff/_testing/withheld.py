@@ -13,8 +13,11 @@ Families (dataset ids ``family/what/seed``; the id seeds the draws):
              baseline), sizes log-uniform over a realistic range whose low end is near the
              detection limit; right answer: that effect.
 ``null``     no missing effect (the programs of all families); right answer: nothing.
-``ool``      an effect outside the library (guide ripple, load-cell hysteresis, force
-             quantisation); right answer: no library effect named ("unexplained").
+``ool``      an effect outside the library (guide ripple, a tight spot in the bore, friction
+             drifting over time, a saturating pressure law, a rate-dependent presliding
+             stiffness, load-cell hysteresis, force quantisation; ``OOL_VARIABLE``); right
+             answer: no library effect named ("unexplained"), and the unexplained structure
+             described by the variable it follows.
 ``pair``     two withheld effects (sizes from the upper part of their ranges); right answer:
              both.
 ``missing``  an effect without its excitation (dwell stiction without standstills, pressure
@@ -33,7 +36,15 @@ from fitstiff._testing import rig_sim as rs
 EFFECTS = ("viscous", "stribeck", "asymmetry", "pressure_friction", "dwell_stiction",
            "heat_transfer", "leakage", "inertia", "force_drift", "time_delay",
            "rig_compliance", "maxwell_slip", "chamber")
-OUT_OF_LIBRARY = ("ripple", "load_cell_hysteresis", "force_quantisation")
+OUT_OF_LIBRARY = ("ripple", "load_cell_hysteresis", "force_quantisation", "tight_spot",
+                  "friction_drift", "saturating_pressure", "rate_stiffness")
+#: what an out-of-library kind's residual follows (the ``variable`` a structure description
+#: should name, :mod:`fitstiff.diagnosis.structure`); ``None``: no structure a description
+#: could catch (rounding noise)
+OOL_VARIABLE = {"ripple": "position", "load_cell_hysteresis": "force",
+                "force_quantisation": None, "tight_spot": "position",
+                "friction_drift": "time", "saturating_pressure": "pressure",
+                "rate_stiffness": "velocity"}
 MISSING = ("dwell_stiction", "pressure_friction")
 FAMILIES = ("single", "null", "ool", "pair", "missing")
 
@@ -103,6 +114,16 @@ def draw_out_of_library(kind: str, rng: np.random.Generator) -> dict[str, float]
         return {"width": _loguniform(rng, 0.3, 1.5), "span": _loguniform(rng, 5.0, 20.0)}
     if kind == "force_quantisation":
         return {"step": _loguniform(rng, 0.25, 1.0)}
+    if kind == "tight_spot":     # its centre: make_dataset puts it on one log's travel
+        return {"gain": _loguniform(rng, 0.15, 0.6), "width": _loguniform(rng, 0.3e-3, 1.0e-3),
+                "offset": rng.uniform(-0.6e-3, 0.6e-3), "log": int(rng.integers(3))}
+    if kind == "friction_drift":
+        sign = 1.0 if rng.uniform() < 0.5 else -1.0
+        return {"gain": sign * _loguniform(rng, 0.1, 0.35), "tau": _loguniform(rng, 3.0, 15.0)}
+    if kind == "saturating_pressure":
+        return {"p_sat": _loguniform(rng, 1.0e5, 2.5e5)}
+    if kind == "rate_stiffness":
+        return {"gamma": _loguniform(rng, 0.15, 0.4), "v_ref": 5e-3}
     raise KeyError(kind)
 
 
@@ -175,6 +196,9 @@ def make_dataset(dataset_id: str, *, rate_scale: float = 1.0, substeps: int = SU
     supplies = (np.full(3, rng.uniform(4.0, 6.0)) if one_pressure else
                 rng.permutation([3.0, 4.5, 6.0]) + rng.uniform(-0.3, 0.3, size=3)) * 1e5
     p_ref = float(np.mean(supplies))
+    if "tight_spot" in ool:
+        spot = ool["tight_spot"]
+        spot["centre"] = float(positions[spot.pop("log")] + spot.pop("offset"))
     noise = rs.SensorNoise(force_N=rng.uniform(0.1, 0.3), ar1=rng.uniform(0.0, 0.5),
                            displacement_um=rng.uniform(0.4, 1.0),
                            quantum_um=float(rng.choice([0.5, 1.0])),
