@@ -239,8 +239,10 @@ def test_withheld_viscous_is_found_and_named(tmp_path):
     assert proc.returncode == 0, proc.stderr
     data = json.loads((out / "diagnosis.json").read_text())
     for key in ("baseline", "gap", "candidates", "accepted", "unexplained", "noise_N",
-                "detectability"):
+                "detectability", "unexplained_structure"):
         assert key in data
+    # the library explains the gap: nothing is left to describe
+    assert not [u for u in data["unexplained_structure"] if u["accepted"]]
     for key in ("heldout_rms_N", "noise_N", "regions"):
         assert key in data["gap"]
     for c in data["candidates"]:

@@ -16,7 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from fitstiff._testing.withheld import EFFECTS, FAMILIES, MISSING, OUT_OF_LIBRARY, make_dataset
+from fitstiff._testing.withheld import (EFFECTS, FAMILIES, MISSING, OOL_VARIABLE,
+                                        OUT_OF_LIBRARY, make_dataset)
 
 __all__ = ["PAIRS", "dataset_ids", "run_dataset", "wilson", "named", "confusion", "score",
            "plot_confusion", "describe"]
@@ -89,12 +90,42 @@ def run_dataset(dataset_id: str, rate_scale: float = 1.0, short: bool = False,
         "candidate_shrink": {k: d.candidate(k).shrink for k in truth["withheld"]
                              if k in [c.effect for c in d.candidates]},
         "unexplained_cells": len(d.unexplained),
+        "structure": structure_records(d.unexplained_structure),
         "baseline_converged": bool(gap["baseline_converged"]),
         "samples": sum(len(log) for log in logs), "logs": len(logs),
         "truth": {k: truth[k] for k in ("effects", "out_of_library", "base", "noise",
                                         "excitation", "logs")},
         "sim_s": sim_s, "wall_s": wall, "timing_s": dict(d.timing_s),
     }
+
+
+def structure_records(described) -> list[dict[str, object]]:
+    """The benchmark's record of a diagnosis' ``unexplained_structure``."""
+    return [{"variable": u.variable, "form": u.form, "accepted": u.accepted,
+             "size_N": u.size_N, "shrink": u.shrink, "t": u.t, "t_needed": u.t_needed,
+             "heldout_rms_before_N": u.heldout_rms_before_N,
+             "heldout_rms_after_N": u.heldout_rms_after_N,
+             "confounded_with": list(u.confounded_with)} for u in described]
+
+
+def structure_from_residuals(dataset_id: str, residuals: Path, rate_scale: float = 1.0,
+                             short: bool = False) -> list[dict[str, object]]:
+    """The structure step of :func:`~fitstiff.diagnosis.diagnose` on a dataset's kept
+    held-out residuals (``run_dataset(..., residuals=DIR)``): the same inputs the
+    diagnosis gives it (its problem's logs, segmentations and counted samples, the pooled
+    noise floor), without diagnosing again."""
+    from fitstiff.diagnosis.structure import describe_structure
+    from fitstiff.inference.problem import Problem
+    from fitstiff.signal.noise import pooled_noise_floor
+
+    logs, truth = make_dataset(dataset_id, rate_scale=rate_scale, short=short)
+    problem = Problem(logs, model=truth["baseline"])
+    with np.load(Path(residuals) / (dataset_id.replace("/", "__") + ".npz")) as z:
+        after = [np.asarray(z[f"after_{k}"]) for k in range(len(logs))]
+    masks = [w > 0 for w in problem.sample_weights]
+    _, pooled = pooled_noise_floor(problem.logs, masks)
+    return structure_records(describe_structure(problem.logs, problem.segmentations, after,
+                                                masks, pooled))
 
 
 # ------------------------------------------------------------------------------- scoring
@@ -175,6 +206,7 @@ def score(records: Mapping[str, Mapping[str, object]]) -> dict[str, object]:
     out["ool"] = {"unexplained": _rate(sum(not r["accepted"] for r in ool), len(ool)),
                   "unexplained_cells_reported": sum(r["unexplained_cells"] > 0 for r in ool),
                   "named": [named(r) for r in ool]}
+    out["structure"] = _structure_scores(single, nulls, ool)
     pairs = by["pair"]
     out["pair"] = {"both_found": _rate(sum(set(r["withheld"]) <= set(r["accepted"])
                                            for r in pairs), len(pairs)),
@@ -206,6 +238,57 @@ def score(records: Mapping[str, Mapping[str, object]]) -> dict[str, object]:
     rows, cols, counts = confusion(recs)
     out["confusion"] = {"rows": rows, "cols": cols, "counts": counts.tolist()}
     return out
+
+
+def described(record: Mapping[str, object]) -> list[Mapping[str, object]]:
+    """The accepted structure descriptions of a record (``[]`` when none, or not run)."""
+    return [u for u in record.get("structure") or () if u["accepted"]]
+
+
+def _structure_scores(single, nulls, ool) -> dict[str, object]:
+    """Issue 32's scores of the unexplained-structure step, over the records that ran it:
+    descriptions accepted on nulls; none accepted after a single in-library effect that the
+    diagnosis accepted exactly; per out-of-library kind: no library effect named, the right
+    variable described first (also counting a variable it is confounded with), the shrink of
+    the accepted descriptions."""
+    ran = [r for r in (*single, *nulls, *ool) if r.get("structure") is not None]
+    nulls = [r for r in nulls if r.get("structure") is not None]
+    found = [r for r in single if r.get("structure") is not None
+             and r["accepted"] == r["withheld"]]
+    ool = [r for r in ool if r.get("structure") is not None]
+    per_kind = {}
+    for kind in OUT_OF_LIBRARY:
+        rs_ = [r for r in ool if r["id"].split("/")[1] == kind]
+        if not rs_:
+            continue
+        want = OOL_VARIABLE[kind]
+        first = [described(r)[0] if described(r) else None for r in rs_]
+        per_kind[kind] = {
+            "n": len(rs_), "variable": want,
+            "never_named": sum(not r["accepted"] for r in rs_),
+            "described": [u["variable"] if u else None for u in first],
+            "right_variable": (sum(u is not None and u["variable"] == want for u in first)
+                               if want else None),
+            "right_or_confounded": (sum(u is not None and (u["variable"] == want or want in
+                                                           u["confounded_with"])
+                                        for u in first) if want else None),
+            "shrink": [u["shrink"] for u in first if u]}
+    judged = [r for r in ool if OOL_VARIABLE[r["id"].split("/")[1]]]
+    firsts = [(described(r)[0] if described(r) else None, OOL_VARIABLE[r["id"].split("/")[1]])
+              for r in judged]
+    shrinks = [u["shrink"] for r in ool for u in described(r)[:1] if u["shrink"] is not None]
+    return {
+        "datasets": len(ran),
+        "null_described": _rate(sum(bool(described(r)) for r in nulls), len(nulls)),
+        "after_library_nothing": _rate(sum(not described(r) for r in found), len(found)),
+        "ool_never_named": _rate(sum(not r["accepted"] for r in ool), len(ool)),
+        "ool_right_variable": _rate(sum(u is not None and u["variable"] == want
+                                        for u, want in firsts), len(firsts)),
+        "ool_right_or_confounded": _rate(sum(u is not None and (u["variable"] == want or want
+                                                                in u["confounded_with"])
+                                             for u, want in firsts), len(firsts)),
+        "ool_median_shrink": float(np.median(shrinks)) if shrinks else None,
+        "per_kind": per_kind}
 
 
 def plot_confusion(ax, rows: Sequence[str], cols: Sequence[str], counts: np.ndarray, *,

@@ -38,6 +38,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     group.add_argument("--min-shrink", type=float, default=MIN_SHRINK,
                        help="share of the held-out gap above the noise an effect must remove "
                             f"(default {MIN_SHRINK})")
+    group.add_argument("--structure", action=argparse.BooleanOptionalAction, default=True,
+                       help="describe what the unexplained held-out residual follows "
+                            "(position, time, pressure, ...; default on)")
     add_data_arguments(group)
     parser.add_argument("--json", action="store_true", help="print diagnosis.json to stdout")
     add_out_argument(parser)
@@ -55,11 +58,13 @@ def run(args) -> int:
     options = problem_options(args)
     with OutputDir(args.out, inputs=input_paths(args), planned=[RESULT, HELDOUT],
                    options={"baseline": args.baseline, "candidates": args.candidates,
-                            "alpha": args.alpha, "min_shrink": args.min_shrink, **options,
+                            "alpha": args.alpha, "min_shrink": args.min_shrink,
+                            "structure": args.structure, **options,
                             "reading": reading_options(args)}) as out:
         logs = logs_from_args(args)
         result = diagnose(logs, baseline=args.baseline, candidates=args.candidates,
-                          alpha=args.alpha, min_shrink=args.min_shrink, **options)
+                          alpha=args.alpha, min_shrink=args.min_shrink,
+                          structure=args.structure, **options)
         out.write_json(RESULT, result.to_dict())
         out.write_bytes(HELDOUT, _npz(result.heldout_arrays()))
         out.finish()

@@ -5,6 +5,7 @@ alone): :mod:`~fitstiff.diagnosis.supermodel` (the baseline and every candidate 
 compiled model with run-time masks), :mod:`~fitstiff.diagnosis.gap` (where: held-out residuals
 by region), :mod:`~fitstiff.diagnosis.screen` (which: score statistics and detectability),
 :mod:`~fitstiff.diagnosis.select` (how far: held-out folds and the acceptance rule),
+:mod:`~fitstiff.diagnosis.structure` (what the unexplained rest follows),
 :mod:`~fitstiff.diagnosis.diagnose` (the whole) and :mod:`~fitstiff.diagnosis.result`.
 """
 

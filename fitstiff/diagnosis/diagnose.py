@@ -10,7 +10,9 @@ The steps (DESIGN §6):
    (:mod:`fitstiff.diagnosis.screen`), then held-out refits of the promising ones;
 4. **how far**: greedy acceptance by the rule of :mod:`fitstiff.diagnosis.select`; what stays
    above the noise floor is reported as unexplained. Each candidate's detectability comes from
-   the first screen.
+   the first screen;
+5. **what the rest follows**: the final model's held-out residual described by one variable
+   at a time (:mod:`fitstiff.diagnosis.structure`), accepted by the same kind of held-out rule.
 """
 
 from __future__ import annotations
@@ -29,6 +31,7 @@ from fitstiff.diagnosis.gap import above_floor, pooled_excess, region_table
 from fitstiff.diagnosis.result import Candidate, Diagnosis
 from fitstiff.diagnosis.screen import Score, collinear_groups, screen
 from fitstiff.diagnosis.select import FoldFit, HeldOut, fold_starts, folds_for, held_out
+from fitstiff.diagnosis.structure import describe_structure
 from fitstiff.diagnosis.supermodel import SuperProblem, candidate_names
 from fitstiff.errors import InputError
 from fitstiff.inference.comparison import TIE
@@ -36,7 +39,7 @@ from fitstiff.io.log import Log
 from fitstiff.physics.model import DEFAULT_MODEL
 from fitstiff.physics.params import to_display
 from fitstiff.physics.terms import TERMS
-from fitstiff.signal.noise import noise_floor
+from fitstiff.signal.noise import pooled_noise_floor
 
 __all__ = ["diagnose", "ALPHA", "MIN_GAIN", "MIN_SHRINK"]
 
@@ -64,7 +67,8 @@ _BOUND = 1e-3
 
 def diagnose(logs: Sequence[Log], *, baseline: str = DEFAULT_MODEL,
              candidates: str | Sequence[str] = "all", alpha: float = ALPHA,
-             min_shrink: float = MIN_SHRINK, **problem_kw) -> Diagnosis:
+             min_shrink: float = MIN_SHRINK, structure: bool = True,
+             **problem_kw) -> Diagnosis:
     """Diagnose the gap between ``baseline`` and the logs.
 
     Args:
@@ -74,6 +78,8 @@ def diagnose(logs: Sequence[Log], *, baseline: str = DEFAULT_MODEL,
             effect names (a list or a comma-separated string).
         alpha: family-wise level of the score screen.
         min_shrink: share of the gap above the noise that an accepted effect must remove.
+        structure: describe what the unexplained held-out residual follows
+            (:mod:`fitstiff.diagnosis.structure`; ``Diagnosis.unexplained_structure``).
         problem_kw: options of :class:`~fitstiff.inference.problem.Problem` (``denoise``,
             ``sample_range``, ``weights``, ``skip``).
 
@@ -95,10 +101,7 @@ def diagnose(logs: Sequence[Log], *, baseline: str = DEFAULT_MODEL,
     problem = sp.problem
     folds = folds_for(sp)
     masks = [w > 0 for w in problem.sample_weights]
-    noise = [noise_floor(log.force, mask=m) for log, m in zip(problem.logs, masks)]
-    counts = np.array([m.sum() for m in masks], dtype=float)
-    noise_pooled = math.sqrt(float(np.sum(counts * np.array([n.sigma**2 for n in noise]))
-                                   / counts.sum()))
+    noise, noise_pooled = pooled_noise_floor(problem.logs, masks)
     weights = sp.entry_weights()
     clock["setup"] = time.perf_counter()
 
@@ -221,6 +224,9 @@ def diagnose(logs: Sequence[Log], *, baseline: str = DEFAULT_MODEL,
     final_table = region_table(current.residuals, problem.segmentations, noise, masks)
     still = above_floor(final_table)
     unexplained = tuple(_cell(row) for _, row in still.head(20).iterrows())
+    described = (describe_structure(problem.logs, problem.segmentations, current.residuals,
+                                    masks, noise_pooled) if structure else ())
+    clock["structure"] = time.perf_counter()
     tie = _tie_order(sp, scores, accepted, theta, hold, active, weights, level=alpha / m)
     ranked = sorted(decided.values(), key=lambda c: (not c.accepted,
                                                      accepted.index(c.effect) if c.accepted
@@ -234,10 +240,11 @@ def diagnose(logs: Sequence[Log], *, baseline: str = DEFAULT_MODEL,
            "baseline_converged": bool(base_ok and baseline_heldout.converged),
            "regions": _records(base_table), "final_regions": _records(final_table)}
     clock["end"] = time.perf_counter()
-    verdict = _verdict(baseline, accepted, decided, gap, still, noise_pooled)
+    verdict = _verdict(baseline, accepted, decided, gap, still, noise_pooled, described)
     return Diagnosis(
         baseline=baseline, final_model="+".join([baseline] + accepted), gap=gap,
         candidates=tuple(ranked), accepted=tuple(accepted), unexplained=unexplained,
+        unexplained_structure=described,
         noise_N={log.name: nf.to_dict() for log, nf in zip(problem.logs, noise)},
         detectability=detectability, skipped=skipped,
         folds=tuple(f.describe([log.name for log in problem.logs]) for f in folds),
@@ -249,6 +256,7 @@ def diagnose(logs: Sequence[Log], *, baseline: str = DEFAULT_MODEL,
         timing_s={"setup": clock["setup"] - clock["start"],
                   "baseline": clock["baseline"] - clock["setup"],
                   "select": clock["select"] - clock["baseline"],
+                  "structure": clock["structure"] - clock["select"],
                   "total": clock["end"] - clock["start"],
                   # parts: the baseline's held-out folds (in "baseline"), the screens on all
                   # data and the candidates' held-out refits with their fold starts (in
@@ -695,7 +703,7 @@ def _records(table) -> list[dict[str, object]]:
                                    for _, row in table.iterrows()]
 
 
-def _verdict(baseline, accepted, decided, gap, still, noise) -> list[str]:
+def _verdict(baseline, accepted, decided, gap, still, noise, described=()) -> list[str]:
     before, after = gap["heldout_rms_N"], gap["final_heldout_rms_N"]
     lines = []
     if not gap["baseline_converged"]:
@@ -727,4 +735,13 @@ def _verdict(baseline, accepted, decided, gap, still, noise) -> list[str]:
         lines.append("unexplained: " + ", ".join(
             f"{excess:.2g} N RMS above the noise in the {region} cells above the floor"
             for region, excess in pooled_excess(still).items()))
+    found = [d for d in described if d.accepted]
+    if found:
+        left = math.sqrt(max(after**2 - noise**2, 0.0))
+        lines.append(f"{left:.2g} N stays unexplained above the noise; " + "; ".join(
+            f"{d.size_N:.2g} N of it follows {d.variable.replace('_', ' ')} ({d.form}"
+            + (f", or {', '.join(d.confounded_with)}: the logs cannot tell them apart"
+               if d.confounded_with else "") + ")" for d in found)
+            + ": no library effect has that shape (see unexplained_structure for what "
+            "usually does and what to record)")
     return lines

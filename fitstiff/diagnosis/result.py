@@ -7,6 +7,8 @@ from collections.abc import Mapping
 
 import numpy as np
 
+from fitstiff.diagnosis.structure import Structure
+
 __all__ = ["Diagnosis", "Candidate"]
 
 
@@ -90,6 +92,8 @@ class Diagnosis:
             of acceptance).
         accepted: accepted effect names, in order; empty when the baseline is adequate.
         unexplained: cells still above the noise floor after the accepted effects.
+        unexplained_structure: what the rest of the held-out residual follows
+            (:class:`~fitstiff.diagnosis.structure.Structure`).
         noise_N: per log: the noise floor (``sigma_N``, ``rho``, ``method``).
         detectability: per candidate: ``testable``, ``parameter``, ``size`` and ``unit`` of the
             smallest effect detected at 80 % power, or ``reason`` and ``record``.
@@ -114,6 +118,9 @@ class Diagnosis:
     verdict: tuple[str, ...]
     files: tuple[str, ...]
     timing_s: Mapping[str, float] = dataclasses.field(default_factory=dict)
+    #: what the unexplained held-out residual follows (:mod:`fitstiff.diagnosis.structure`):
+    #: the accepted descriptions in order, then the best of every other variable tried
+    unexplained_structure: tuple[Structure, ...] = ()
     #: held-out residuals (model - measured force, N) per log: ``"before"`` (the baseline)
     #: and ``"after"`` (the final model); kept beside diagnosis.json as ``heldout.npz``
     heldout: Mapping[str, tuple[np.ndarray, ...]] = dataclasses.field(
@@ -141,6 +148,7 @@ class Diagnosis:
             "candidates": [c.to_dict() for c in self.candidates],
             "accepted": list(self.accepted),
             "unexplained": [dict(u) for u in self.unexplained],
+            "unexplained_structure": [u.to_dict() for u in self.unexplained_structure],
             "noise_N": {k: dict(v) for k, v in self.noise_N.items()},
             "detectability": {k: dict(v) for k, v in self.detectability.items()},
             "skipped": dict(self.skipped),
@@ -158,7 +166,10 @@ class Diagnosis:
             baseline=data["baseline"], final_model=data["final_model"], gap=data["gap"],
             candidates=tuple(Candidate.from_dict(c) for c in data["candidates"]),
             accepted=tuple(data["accepted"]),
-            unexplained=tuple(data["unexplained"]), noise_N=data["noise_N"],
+            unexplained=tuple(data["unexplained"]),
+            unexplained_structure=tuple(Structure.from_dict(u) for u in
+                                        data.get("unexplained_structure", ())),
+            noise_N=data["noise_N"],
             detectability=data["detectability"], skipped=data.get("skipped", {}),
             folds=tuple(data.get("folds", ())), settings=data.get("settings", {}),
             verdict=tuple(data.get("verdict", ())), files=tuple(data.get("files", ())),
@@ -188,6 +199,10 @@ class Diagnosis:
                          f"{f(c.heldout_rms_before_N, '.4g'):>10}"
                          f"{f(c.heldout_rms_after_N, '.4g'):>10}{f(c.shrink, '.2f'):>8}  "
                          f"{verdict}")
+        found = [u for u in self.unexplained_structure if u.accepted]
+        if found:
+            lines.append("  unexplained structure (held out):")
+            lines += [f"    {u.description}" for u in found]
         lines += [f"  {v}" for v in self.verdict]
         return "\n".join(lines)
 

@@ -30,7 +30,7 @@ import math
 
 import numpy as np
 
-__all__ = ["NoiseFloor", "marginal_scale", "noise_floor"]
+__all__ = ["NoiseFloor", "marginal_scale", "noise_floor", "pooled_noise_floor"]
 
 _MAD = 1.4826
 _RHO_MIN, _RHO_MAX = -0.9, 0.95
@@ -127,3 +127,12 @@ def _nonnegative_pairs(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.nda
     inside = (det > 0) & (x >= 0) & (y >= 0)
     corner = np.maximum(a1 / aa, 0.0)
     return np.where(inside, x, corner), np.where(inside, y, 0.0)
+
+
+def pooled_noise_floor(logs, masks) -> tuple[list[NoiseFloor], float]:
+    """Each log's force noise floor over its counted samples (``masks``), and the floor
+    pooled over the logs by their counted samples: ``sqrt(sum n_k sigma_k^2 / sum n_k)`` (N)."""
+    floors = [noise_floor(log.force, mask=m) for log, m in zip(logs, masks)]
+    counts = np.array([np.count_nonzero(m) for m in masks], dtype=float)
+    sig2 = np.array([f.sigma**2 for f in floors])
+    return floors, math.sqrt(float(np.sum(counts * sig2) / counts.sum()))

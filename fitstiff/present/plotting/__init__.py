@@ -38,6 +38,7 @@ from fitstiff.present.plotting.chains import plot_autocorr, plot_corner, plot_tr
 from fitstiff.present.plotting.loops import plot_loop, reversal_zoom_samples, reversal_zoom_window
 from fitstiff.present.plotting.residuals import (plot_friction_levels, plot_gap_heatmap,
                                                  plot_residual_signature, plot_residuals,
+                                                 plot_structure,
                                                  sliding_friction_level)
 from fitstiff.present.plotting.stroke import (StrokeContributions, contributions_over_stroke,
                                               plot_contributions_over_stroke)
@@ -45,5 +46,5 @@ from fitstiff.present.plotting.stroke import (StrokeContributions, contributions
 __all__ = ["DIRECTION_COLORS", "REGION_COLORS", "StrokeContributions",
            "contributions_over_stroke", "plot_autocorr", "plot_contributions_over_stroke",
            "plot_corner", "plot_friction_levels", "plot_gap_heatmap", "plot_loop",
-           "plot_residual_signature", "plot_residuals", "plot_trace", "reversal_zoom_samples",
+           "plot_residual_signature", "plot_residuals", "plot_structure", "plot_trace", "reversal_zoom_samples",
            "reversal_zoom_window", "sliding_friction_level"]

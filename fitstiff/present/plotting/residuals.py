@@ -19,7 +19,7 @@ from fitstiff.present.plotting._common import (DIRECTION_COLORS, REGION_COLORS, 
 from fitstiff.segments.segmentation import REGIONS, Segmentation
 from fitstiff.units import MM
 
-__all__ = ["plot_friction_levels", "plot_gap_heatmap", "plot_residual_signature",
+__all__ = ["plot_friction_levels", "plot_gap_heatmap", "plot_residual_signature", "plot_structure",
            "plot_residuals", "sliding_friction_level"]
 
 
@@ -137,7 +137,8 @@ def plot_gap_heatmap(ax: Axes, table, *, label: str = "z-score of the RMS agains
 
 
 def plot_residual_signature(ax: Axes, x: ArrayLike, before: ArrayLike, after: ArrayLike | None,
-                            *, xlabel: str, bins: int = 30) -> Axes:
+                            *, xlabel: str, bins: int = 30,
+                            ylabel: str = "held-out residual (N)") -> Axes:
     """Held-out residual against one variable (displacement since reversal, velocity,
     pressure, position, time): the samples faint, the binned mean and +-1 sd of the residual
     before (and after) the accepted effects. A trend or a step is an effect's signature."""
@@ -167,11 +168,38 @@ def plot_residual_signature(ax: Axes, x: ArrayLike, before: ArrayLike, after: Ar
         ax.fill_between(centre, mean - sd, mean + sd, color=color, alpha=0.15, lw=0)
     ax.axhline(0.0, color="0.3", lw=0.8)
     ax.set_xlabel(xlabel)
-    ax.set_ylabel("held-out residual (N)")
+    ax.set_ylabel(ylabel)
     if ax.get_legend_handles_labels()[0]:
         ax.legend(loc="upper right", fontsize=8)
     else:
         ax.set_title("one value only: no trend to show", fontsize=9)
+    return ax
+
+
+def plot_structure(ax: Axes, x: ArrayLike, residual: ArrayLike, prediction: ArrayLike, *,
+                   sign: ArrayLike | None = None, shape: dict | None = None, xlabel: str,
+                   bins: int = 30) -> Axes:
+    """A description of the unexplained residual (:mod:`fitstiff.diagnosis.structure`): the
+    held-out residual against the variable it follows before (red) and after (blue) taking
+    the description's held-out prediction off, and the fitted shape (black). A
+    sign-dependent description is drawn times its ``sign`` (the direction of motion, or of
+    the force's change), where it is one curve."""
+    x = np.asarray(x, dtype=float)
+    r = np.asarray(residual, dtype=float)
+    pred = np.asarray(prediction, dtype=float)
+    s = np.ones_like(r) if sign is None else np.asarray(sign, dtype=float)
+    keep = s != 0
+    signed = sign is not None
+    plot_residual_signature(ax, x[keep], (r * s)[keep], ((r - pred) * s)[keep], xlabel=xlabel,
+                            bins=bins, ylabel="held-out residual" + (" x direction" if signed
+                                                                     else "") + " (N)")
+    if shape and shape.get("x"):
+        curve = shape.get("toward_B") if signed else shape.get("y")
+        if curve is not None:
+            xs = np.asarray(shape["x"], dtype=float)
+            ys = np.array([np.nan if v is None else v for v in curve], dtype=float)
+            ax.plot(xs, ys, "-", color="black", lw=2.0, label="fitted description")
+            ax.legend(loc="upper right", fontsize=8)
     return ax
 
 

@@ -83,6 +83,8 @@ def diagnosis_report(run: RunDirectory, *, draws: int) -> Report:
         Section("Residual signatures", figures=(signature,)),
         Section("Loops", figures=loops),
     ]
+    if result.unexplained_structure:
+        sections.insert(1, _structure_section(result, logs, segs, after, masks))
     return Report(f"Diagnosis: {result.baseline}", _diagnosis_verdict(result), summary,
                    tuple(sections), summary_title="Candidate effects")
 
@@ -140,6 +142,52 @@ def _signature_figure(logs, segs, before, after, masks) -> ReportFigure:
                "baseline" + ("; blue: with the accepted effects" if after is not None else "")
                + "; lines: binned mean, bands: +-1 sd.")
     return ReportFigure("residual_signatures", caption, fig)
+
+
+def _structure_section(result, logs, segs, after, masks) -> Section:
+    """What the unexplained gap follows: the descriptions' table and, per accepted one, the
+    held-out residual against its variable before and after it, with its fitted shape."""
+    from fitstiff.diagnosis.structure import accepted_descriptions
+
+    rows = [[u.variable.replace("_", " "), u.form, fmt(u.size_N, 3),
+             fmt(u.heldout_rms_before_N, 4), fmt(u.heldout_rms_after_N, 4), fmt(u.shrink, 2),
+             "yes" if u.accepted else "no",
+             (u.description + ". " + u.suggestion) if u.accepted else u.why]
+            for u in result.unexplained_structure]
+    html = (html_table(["follows", "form", "size N", "held-out before N", "held-out after N",
+                        "shrink", "accepted", "what it is / why not"], rows, numeric_from=2,
+                       prose=(7,))
+            + paragraph("After the library, the final model's held-out residual is described "
+                        "by one variable at a time (a small regularised curve, fitted on "
+                        "other blocks of the logs than the ones it predicts), and a "
+                        "description is accepted by the library's kind of rule: significant "
+                        "over the held-out blocks, and it removes a share of the gap above "
+                        "the noise floor."))
+    found = [d for d in accepted_descriptions(logs, segs, after, masks,
+                                              float(result.gap["noise_N"]))
+             if d.structure.accepted]
+    figures = ()
+    if found:
+        fig = Figure(figsize=(5.0 * len(found), 3.8), layout="constrained")
+        axes = fig.subplots(1, len(found), squeeze=False)[0]
+        keep = np.concatenate(masks)
+        for ax, d in zip(axes, found):
+            u = d.structure
+            even = not u.form.startswith("sign-dependent")
+            plotting.plot_structure(ax, d.values[keep], d.residual[keep], d.prediction[keep],
+                                    sign=None if even else d.sign[keep], shape=u.shape,
+                                    xlabel=(f"{u.variable.replace('_', ' ')} within the "
+                                            "period, each log's phase aligned"
+                                            if u.period else u.variable.replace('_', ' '))
+                                    + (f" ({u.unit})" if u.unit else ""))
+            ax.set_title(f"{u.variable.replace('_', ' ')}: {u.form}, {u.size_N:.2g} N",
+                         fontsize=9)
+        figures = (ReportFigure(
+            "unexplained_structure", "What the unexplained held-out residual follows: red, "
+            "the residual left by the final model; blue, after taking off the description's "
+            "held-out prediction; black, the description fitted to all samples (a "
+            "sign-dependent one drawn times the direction).", fig),)
+    return Section("What the unexplained gap follows", html=html, figures=figures)
 
 
 def _diagnosis_loop(log, before, after, result, i) -> ReportFigure:
