@@ -7,11 +7,12 @@ something. This module tries small regularised models ``d(v)`` of ``r`` in one v
 of a fixed vocabulary (:data:`VARIABLES`), and names the one that holds on held-out data.
 
 **Descriptions.** For each variable: ``linear`` (one column), ``smooth`` (hat functions at
-``KNOTS`` quantiles of ``v``, a second-difference penalty chosen by generalised
-cross-validation), ``periodic`` (a sine and a cosine whose period is scanned; position only)
-and ``step`` (one level per log, or per direction), each either **even** (the same in both
-directions of motion) or **sign-dependent** (times the direction of motion: a friction-like
-force; for ``force``, the direction of the force's change: a hysteresis). Every column is
+``KNOTS`` quantiles of ``v``, of each log's own for the position, a second-difference penalty
+chosen by generalised cross-validation), ``periodic`` (a sine and a cosine whose period is scanned; position only)
+``step`` (one level per log, or per direction) and, for the force, ``hysteresis`` (smooth in
+the force's change since it last turned, times the direction of its change), each either
+**even** (the same in both directions of motion) or **sign-dependent** (times the direction
+of motion: a friction-like force). Every column is
 centred per log, so no description can take over a log's force offset (a nuisance the fit
 already owns).
 
@@ -87,8 +88,9 @@ _WHAT = {
 #: (physical effects that usually look like this, what to record to tell them apart)
 _SUGGEST = {
     ("position", False): (
-        "a cyclic error of the displacement sensor, a guide or bore ripple, or the chambers' "
-        "spring beyond the polytropic law",
+        "a force that depends on where the piston is: a guide or bore ripple, a cyclic error "
+        "of the displacement sensor, the chambers' spring beyond the polytropic law, or "
+        "friction that changes along the bore",
         "record the same program at two start positions a fraction of the period apart: a "
         "bore feature moves with the position, a sensor error with the sensor"),
     ("position", True): (
@@ -216,8 +218,12 @@ def structure_variables(log: Log, seg: Segmentation, model_force: np.ndarray
     out["direction"] = np.asarray(seg.direction, float)
     out["force"] = np.asarray(model_force, float)
     out["_motion"] = np.asarray(seg.direction, float)
-    change = np.gradient(_smooth(np.asarray(model_force, float), 5))
-    out["_force"] = np.sign(change)
+    # the model force has no noise: the sign of its change marks its reversals
+    f = np.asarray(model_force, float)
+    change = np.sign(np.gradient(f))
+    out["_force"] = change
+    turn = np.flatnonzero((change[1:] != change[:-1]) & (change[1:] != 0)) + 1
+    out["_force_since_reversal"] = _since_reversal(f, turn)
     return out
 
 
@@ -249,6 +255,8 @@ class _Candidate:
 
     @property
     def label(self) -> str:
+        if self.form == "hysteresis":
+            return "hysteresis (smooth in the force's change since it last turned)"
         return ("sign-dependent " if self.signed else "") + self.form
 
 
@@ -285,6 +293,12 @@ def _candidates(per_log: Sequence[Mapping[str, np.ndarray]], log_id: np.ndarray
         if np.ptp(v) <= 0:
             continue
         sign = force_sign if name == "force" else motion
+        if name == "force":         # a nonlinearity of F, a hysteresis in F
+            out.append(_Candidate(name, "smooth", False, v, ones))
+            travel = cat("_force_since_reversal")
+            if travel is not None and np.ptp(travel) > 0:
+                out.append(_Candidate(name, "hysteresis", True, travel, sign))
+            continue
         if name == "velocity":      # a friction-like law of the speed, or any law of v
             out.append(_Candidate(name, "smooth", True, np.abs(v), sign))
             out.append(_Candidate(name, "smooth", False, v, ones))
@@ -349,8 +363,8 @@ class _Design:
             base = np.concatenate([own * np.sin(phase)[:, None], own * np.cos(phase)[:, None]],
                                   axis=1)
             pen = np.zeros((base.shape[1], base.shape[1]))
-        else:
-            knots = np.unique(np.quantile(v[train], np.linspace(0, 1, KNOTS)))
+        else:                       # smooth; a hysteresis is smooth in the force's travel
+            knots = self._knots(v, train)
             if knots.size < 3:
                 knots = np.linspace(v[train].min(), v[train].max() + 1e-12, 3)
             base = _hats(v, knots)
@@ -358,6 +372,16 @@ class _Design:
             pen = d2.T @ d2
         x = base * c.sign[:, None]
         return self._centre(x), pen
+
+    def _knots(self, v: np.ndarray, train: np.ndarray) -> np.ndarray:
+        """``KNOTS`` quantiles of the training values; of each log's own for the position
+        (logs far apart along the stroke would otherwise share a handful of knots)."""
+        q = np.linspace(0, 1, KNOTS)
+        if self.cand.variable != "position":
+            return np.unique(np.quantile(v[train], q))
+        return np.unique(np.concatenate([np.quantile(v[train & (self.log_id == k)], q)
+                                         for k in range(self.n_logs)
+                                         if np.any(train & (self.log_id == k))]))
 
     def _centre(self, x: np.ndarray) -> np.ndarray:
         out = x.copy()
