@@ -164,3 +164,16 @@ def test_a_ripple_is_described_through_the_diagnosis_and_the_report_draws_it(tmp
     assert any("follows position" in line for line in data["verdict"])
     page = next(out.glob("*.html")).read_text()
     assert "What the unexplained gap follows" in page and "unexplained_structure" in page
+
+
+def test_a_description_with_a_library_effects_shape_says_the_library_tried_it(logs):
+    # a friction level that differs between the directions is asymmetry's shape
+    logs_, segs = logs
+    r = [e + 0.3 * seg.direction for seg, e in zip(segs, _noise(logs_, 6))]
+    masks = [np.ones(len(log), bool) for log in logs_]
+    found = describe_structure(logs_, segs, r, masks, SIGMA,
+                               library={"asymmetry": "held-out RMS did not fall"})
+    first = _first(found)
+    assert first is not None and first.variable == "direction", found
+    assert "asymmetry has a shape like it; the library tried it and did not accept it " \
+           "(held-out RMS did not fall)" in first.suggestion

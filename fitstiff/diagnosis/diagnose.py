@@ -225,7 +225,10 @@ def diagnose(logs: Sequence[Log], *, baseline: str = DEFAULT_MODEL,
     still = above_floor(final_table)
     unexplained = tuple(_cell(row) for _, row in still.head(20).iterrows())
     described = (describe_structure(problem.logs, problem.segmentations, current.residuals,
-                                    masks, noise_pooled) if structure else ())
+                                    masks, noise_pooled,
+                                    library={e: c.why for e, c in decided.items()
+                                             if not c.accepted})
+                 if structure else ())
     clock["structure"] = time.perf_counter()
     tie = _tie_order(sp, scores, accepted, theta, hold, active, weights, level=alpha / m)
     ranked = sorted(decided.values(), key=lambda c: (not c.accepted,

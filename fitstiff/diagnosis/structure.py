@@ -49,7 +49,7 @@ from fitstiff.inference.comparison import TIE
 from fitstiff.io.log import Log
 from fitstiff.segments.segmentation import Segmentation
 
-__all__ = ["VARIABLES", "Described", "Structure", "accepted_descriptions",
+__all__ = ["VARIABLES", "LOOKALIKES", "Described", "Structure", "accepted_descriptions",
            "describe_structure", "structure_variables",
            "STRUCTURE_ALPHA", "STRUCTURE_MIN_SHRINK"]
 
@@ -146,6 +146,14 @@ _SUGGEST = {
         "temperature",
         "repeat one log at the end of the session, unchanged"),
 }
+
+#: library effects whose residual has the shape of a description: when one of them was tried
+#: and not accepted, the description says so (the library's held-out refit is the test of
+#: that effect; the description only says where the rest goes)
+LOOKALIKES = {("velocity", True): ("viscous", "stribeck"), ("time", False): ("force_drift",),
+              ("pressure", True): ("pressure_friction",), ("direction", False): ("asymmetry",),
+              ("acceleration", False): ("inertia",), ("since_reversal", True):
+              ("maxwell_slip",), ("time", True): ("dwell_stiction",)}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -489,7 +497,8 @@ def describe_structure(logs: Sequence[Log], segmentations: Sequence[Segmentation
                        residuals: Sequence[np.ndarray], masks: Sequence[np.ndarray],
                        noise_N: float, *, alpha: float = STRUCTURE_ALPHA,
                        min_shrink: float = STRUCTURE_MIN_SHRINK,
-                       max_accept: int = MAX_ACCEPT) -> tuple[Structure, ...]:
+                       max_accept: int = MAX_ACCEPT,
+                       library: Mapping[str, str] | None = None) -> tuple[Structure, ...]:
     """Describe what the held-out residual follows (see the module docstring).
 
     Args:
@@ -497,13 +506,15 @@ def describe_structure(logs: Sequence[Log], segmentations: Sequence[Segmentation
         residuals: per log, the final model's held-out residual (model - measured, N).
         masks: per log, the samples that count.
         noise_N: the pooled noise floor (N).
+        library: the library effects tried and not accepted, with why (a description with
+            one's shape says so, :data:`LOOKALIKES`).
 
     Returns:
         The accepted descriptions in order, then the best description of every other
         variable tried in the last round (not accepted, with why), best first.
     """
     found, rest = _describe(logs, segmentations, residuals, masks, noise_N, alpha=alpha,
-                            min_shrink=min_shrink, max_accept=max_accept)
+                            min_shrink=min_shrink, max_accept=max_accept, library=library)
     return tuple(d.structure for d in found) + tuple(rest)
 
 
@@ -516,7 +527,8 @@ def accepted_descriptions(logs: Sequence[Log], segmentations: Sequence[Segmentat
 
 def _describe(logs, segmentations, residuals, masks, noise_N, *,
               alpha: float = STRUCTURE_ALPHA, min_shrink: float = STRUCTURE_MIN_SHRINK,
-              max_accept: int = MAX_ACCEPT) -> tuple[list[Described], list[Structure]]:
+              max_accept: int = MAX_ACCEPT, library: Mapping[str, str] | None = None
+              ) -> tuple[list[Described], list[Structure]]:
     from scipy import stats
 
     r_logs = [np.asarray(r, float) for r in residuals]
@@ -588,7 +600,7 @@ def _describe(logs, segmentations, residuals, masks, noise_N, *,
                        and _corr(x.pred, chosen.pred, weight) > CONFOUNDED)
         accepted.append(Described(
             _record(chosen, relative, noise_N, accepted=True, round_=round_,
-                    t_needed=t_needed, rivals=rivals),
+                    t_needed=t_needed, rivals=rivals, library=library or {}),
             chosen.shown, chosen.cand.sign, r, chosen.pred))
         r = r - chosen.pred
         designs = [d for d in designs if d.cand.variable != chosen.cand.variable]
@@ -638,7 +650,8 @@ def _why_not(x: _Tried, t_needed: float, noise: float, min_shrink: float,
 
 
 def _record(x: _Tried, relative: bool, noise: float, *, accepted: bool, round_: int,
-            t_needed: float, rivals: tuple[str, ...] = (), why: str = "") -> Structure:
+            t_needed: float, rivals: tuple[str, ...] = (), why: str = "",
+            library: Mapping[str, str] = {}) -> Structure:
     c = x.cand
     unit = UNITS[c.variable]
     size = math.sqrt(float(np.mean(x.full**2)))
@@ -658,6 +671,10 @@ def _record(x: _Tried, relative: bool, noise: float, *, accepted: bool, round_: 
     if rivals:
         suggestion += (f". The logs cannot tell it from {', '.join(rivals)} (the same "
                        "prediction): record data that vary them separately")
+    for effect in LOOKALIKES.get((c.variable, c.signed), ()):
+        if effect in library:
+            suggestion += (f". {effect} has a shape like it; the library tried it and did "
+                           f"not accept it ({library[effect]})")
     return Structure(variable=c.variable, form=form, size_N=size,
                      heldout_rms_before_N=x.before, heldout_rms_after_N=x.after,
                      shrink=shrink, accepted=accepted, description=description,
