@@ -67,7 +67,7 @@ STRUCTURE_MIN_SHRINK = 0.2
 MIN_GAIN = 0.05
 MAX_ACCEPT = 3
 FOLDS = 4
-BLOCKS = 8
+BLOCKS = 16
 KNOTS = 8
 #: descriptions of two variables whose held-out predictions correlate above this are one
 CONFOUNDED = 0.9
@@ -320,7 +320,7 @@ def _candidates(per_log: Sequence[Mapping[str, np.ndarray]], log_id: np.ndarray
             out.append(_Candidate(name, "linear", True, v, sign))
         for signed in (False, True):
             out.append(_Candidate(name, "smooth", signed, v, sign if signed else ones))
-        if name == "position":
+        if name == "position" and _periods(v, log_id).size:
             for signed in (False, True):
                 out.append(_Candidate(name, "periodic", signed, v, sign if signed else ones))
     return out
@@ -429,11 +429,14 @@ def _ridge(x: np.ndarray, r: np.ndarray, pen: np.ndarray, w: np.ndarray) -> np.n
 
 
 def _periods(v: np.ndarray, log_id: np.ndarray) -> np.ndarray:
+    """The periods scanned: from 20 sample steps (at least 0.2 of the unit) to half the
+    widest log's span (a period is only claimed where two of them were travelled; a
+    longer one is a smooth curve); empty when the logs are too short for that."""
     spans = [np.ptp(v[log_id == k]) for k in np.unique(log_id)]
     step = np.median(np.abs(np.diff(v)))
     low = max(0.2, 20 * step)
-    high = max(2.0 * max(spans), 2 * low)
-    return np.geomspace(low, high, _PERIODS)
+    high = 0.5 * max(spans)
+    return np.geomspace(low, high, _PERIODS) if high > 1.5 * low else np.zeros(0)
 
 
 def _fit_predict(design: _Design, r: np.ndarray, train: np.ndarray, w: np.ndarray
