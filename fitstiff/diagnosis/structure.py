@@ -31,7 +31,8 @@ above the noise. Among the descriptions that pass, the lowest held-out RMS wins 
 prediction is taken off the residual and the rest is described again, up to
 ``MAX_ACCEPT`` descriptions. Descriptions of other variables that tie with the accepted one
 and predict the same thing (correlation above ``CONFOUNDED``) are its ``confounded_with``:
-the logs cannot tell those variables apart.
+the logs cannot tell those variables apart; so is ``log`` for a curve (not a period) of a
+variable whose ranges in the logs do not overlap (a curve of it is as well a shape per log).
 
 The rates are measured in the withheld-effect benchmark (``benchmarks/withheld.py``: nulls,
 datasets whose in-library effect was accepted, and the out-of-library family).
@@ -601,6 +602,9 @@ def _describe(logs, segmentations, residuals, masks, noise_N, *,
                        if x.cand.variable != chosen.cand.variable
                        and x.after - best_after <= band
                        and _corr(x.pred, chosen.pred, weight) > CONFOUNDED)
+        if (chosen.cand.form in ("linear", "smooth", "curved") and "log" not in rivals
+                and _disjoint(chosen.cand.values, log_id, counted)):
+            rivals += ("log",)
         accepted.append(Described(
             _record(chosen, relative, noise_N, accepted=True, round_=round_,
                     t_needed=t_needed, rivals=rivals, library=library or {}),
@@ -634,6 +638,14 @@ def _best_per_variable(tried: Sequence[_Tried], band: float) -> list[_Tried]:
                 abs(x.after - cur.after) <= band and x.dof < cur.dof):
             best[x.cand.variable] = x
     return list(best.values())
+
+
+def _disjoint(v: np.ndarray, log_id: np.ndarray, counted: np.ndarray) -> bool:
+    """Whether no two logs share a range of ``v`` (two logs or more): a curve of ``v`` is
+    then as well a shape of its own per log."""
+    ranges = sorted((float(v[m].min()), float(v[m].max()))
+                    for k in np.unique(log_id) if (m := (log_id == k) & counted).any())
+    return len(ranges) >= 2 and all(a[1] < b[0] for a, b in zip(ranges, ranges[1:]))
 
 
 def _corr(a: np.ndarray, b: np.ndarray, w: np.ndarray) -> float:
