@@ -10,6 +10,7 @@ the shrink. The step is cheap (about a second a dataset), so thresholds can be s
 without diagnosing the datasets again.
 
     python benchmarks/structure.py --residuals DIR RESULTS.json [MORE.json ...] [--out F]
+        [--alpha A] [--min-shrink S]
 """
 
 from __future__ import annotations
@@ -20,12 +21,18 @@ import time
 from pathlib import Path
 
 from fitstiff._testing.withheld_scoring import score, structure_from_residuals
+from fitstiff.diagnosis.structure import STRUCTURE_ALPHA, STRUCTURE_MIN_SHRINK
 
 
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("results", type=Path, nargs="+", help="withheld.py JSON files")
     parser.add_argument("--residuals", type=Path, required=True, metavar="DIR")
+    parser.add_argument("--alpha", type=float, default=STRUCTURE_ALPHA,
+                        help=f"the descriptions' level (default {STRUCTURE_ALPHA})")
+    parser.add_argument("--min-shrink", type=float, default=STRUCTURE_MIN_SHRINK,
+                        help=f"share of the gap a description must remove (default "
+                             f"{STRUCTURE_MIN_SHRINK})")
     parser.add_argument("--out", type=Path, default=None,
                         help="write the merged records and scores here (JSON)")
     args = parser.parse_args(argv)
@@ -37,7 +44,8 @@ def main(argv=None) -> None:
         if "error" in r or not (args.residuals / (did.replace("/", "__") + ".npz")).exists():
             continue
         start = time.perf_counter()
-        r["structure"] = structure_from_residuals(did, args.residuals)
+        r["structure"] = structure_from_residuals(did, args.residuals, alpha=args.alpha,
+                                                  min_shrink=args.min_shrink)
         seconds.append(time.perf_counter() - start)
         found = [f"{u['variable']} {u['form']} shrink {u['shrink']:.2f}"
                  for u in r["structure"] if u["accepted"]]

@@ -109,11 +109,12 @@ def structure_records(described) -> list[dict[str, object]]:
 
 
 def structure_from_residuals(dataset_id: str, residuals: Path, rate_scale: float = 1.0,
-                             short: bool = False) -> list[dict[str, object]]:
+                             short: bool = False, **rule) -> list[dict[str, object]]:
     """The structure step of :func:`~fitstiff.diagnosis.diagnose` on a dataset's kept
     held-out residuals (``run_dataset(..., residuals=DIR)``): the same inputs the
     diagnosis gives it (its problem's logs, segmentations and counted samples, the pooled
-    noise floor), without diagnosing again."""
+    noise floor), without diagnosing again. ``rule``: ``alpha``, ``min_shrink`` of
+    :func:`~fitstiff.diagnosis.structure.describe_structure`."""
     from fitstiff.diagnosis.structure import describe_structure
     from fitstiff.inference.problem import Problem
     from fitstiff.signal.noise import pooled_noise_floor
@@ -125,7 +126,7 @@ def structure_from_residuals(dataset_id: str, residuals: Path, rate_scale: float
     masks = [w > 0 for w in problem.sample_weights]
     _, pooled = pooled_noise_floor(problem.logs, masks)
     return structure_records(describe_structure(problem.logs, problem.segmentations, after,
-                                                masks, pooled))
+                                                masks, pooled, **rule))
 
 
 # ------------------------------------------------------------------------------- scoring

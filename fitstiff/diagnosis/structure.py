@@ -29,9 +29,10 @@ least ``MIN_GAIN`` of the noise floor; and the fall is at least ``min_shrink`` o
 above the noise. Among the descriptions that pass, the lowest held-out RMS wins (within
 ``TIE`` of the noise floor: fewer parameters, then the vocabulary's order); its held-out
 prediction is taken off the residual and the rest is described again, up to
-``MAX_ACCEPT`` descriptions. Descriptions of other variables that tie with the accepted one
-and predict the same thing (correlation above ``CONFOUNDED``) are its ``confounded_with``:
-the logs cannot tell those variables apart; so is ``log`` for a curve (not a period) of a
+``MAX_ACCEPT`` descriptions. Descriptions of other variables that do about as well (a tie,
+or passing with at least ``RIVAL_GAIN`` of the winner's held-out gain) and predict the same
+thing (correlation above ``CONFOUNDED``) are its ``confounded_with``: the logs cannot tell
+those variables apart; so is ``log`` for a curve (not a period) of a
 variable whose ranges in the logs do not overlap (a curve of it is as well a shape per log).
 
 The rates are measured in the withheld-effect benchmark (``benchmarks/withheld.py``: nulls,
@@ -70,8 +71,11 @@ MAX_ACCEPT = 3
 FOLDS = 4
 BLOCKS = 16
 KNOTS = 8
-#: descriptions of two variables whose held-out predictions correlate above this are one
-CONFOUNDED = 0.9
+#: descriptions of two variables whose held-out predictions correlate above this, and whose
+#: held-out gains are within a tie or the rival's at least RIVAL_GAIN of the chosen one's
+#: (passing the rule itself), are one: the logs cannot tell the variables apart
+CONFOUNDED = 0.8
+RIVAL_GAIN = 0.8
 _PERIODS = 40
 _LAMBDAS = 10.0 ** np.arange(-4.0, 4.5, 1.0)
 
@@ -598,9 +602,11 @@ def _describe(logs, segmentations, residuals, masks, noise_N, *,
             break
         best_after = min(x.after for x in passing)
         chosen = min(passing, key=order)
+        gain = chosen.before - chosen.after
         rivals = tuple(x.cand.variable for x in best_by_var
                        if x.cand.variable != chosen.cand.variable
-                       and x.after - best_after <= band
+                       and (x.after - best_after <= band or x in passing
+                            and x.before - x.after >= RIVAL_GAIN * gain)
                        and _corr(x.pred, chosen.pred, weight) > CONFOUNDED)
         if (chosen.cand.form in ("linear", "smooth", "curved") and "log" not in rivals
                 and _disjoint(chosen.cand.values, log_id, counted)):
