@@ -254,5 +254,9 @@ def _diagnosis_verdict(result) -> Verdict:
     if not result.accepted and not result.unexplained:
         headline += " The baseline is adequate: its held-out misfit is at the noise floor."
     elif result.unexplained:
-        headline += " Part of the gap stays unexplained (see the heat map)."
+        follows = [u.variable.replace("_", " ") for u in result.unexplained_structure
+                   if u.accepted]
+        headline += (" Part of the gap stays unexplained (see the heat map)" if not follows
+                     else " Part of the gap stays unexplained; it follows "
+                     + " and ".join(follows) + " (see what the unexplained gap follows)") + "."
     return Verdict(status, headline, tuple(result.verdict))
