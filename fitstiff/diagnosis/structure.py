@@ -171,8 +171,8 @@ class Structure:
     phase aligned). ``size_N`` is the RMS of the description fitted to
     all samples; the held-out RMS before and after are of the residual with the description
     held out (its own folds); ``shrink`` is the share of the gap above the noise floor it
-    removes. ``shape`` holds the fitted curve (``x`` in ``unit``; ``y`` N, or ``toward_B``
-    and ``toward_A`` for a sign-dependent one) for plots."""
+    removes. ``shape`` holds the fitted curve (``x`` as ``axis`` says; ``y`` N, or
+    ``toward_B`` and ``toward_A`` for a sign-dependent one) for plots."""
 
     variable: str
     form: str
@@ -192,6 +192,8 @@ class Structure:
     confounded_with: tuple[str, ...] = ()
     why: str = ""
     shape: Mapping[str, list[float]] = dataclasses.field(default_factory=dict)
+    #: what ``shape``'s ``x`` is, with its unit (the plot's axis)
+    axis: str = ""
 
     def to_dict(self) -> dict[str, object]:
         out = dataclasses.asdict(self)
@@ -580,9 +582,9 @@ def _describe(logs, segmentations, residuals, masks, noise_N, *,
             t = float(np.mean(gains) / (sd / math.sqrt(n_blocks))) if sd > 0 else 0.0
             after = math.sqrt(float(np.sum(weight * (r - pred) ** 2) / weight.sum()))
             full, period, dof = _fit_predict(design, r, fold >= 0, weight)
-            shown = (design.cand.values if period is None else
-                     _folded(design.cand, log_id, full, period))
-            tried.append(_Tried(design.cand, pred, full, period, dof, t, before, after, shown))
+            shown, axis = _shown(design.cand, log_id, counted, full, period)
+            tried.append(_Tried(design.cand, pred, full, period, dof, t, before, after, shown,
+                                axis))
         shrinks = {id(x): (x.before - x.after) / (x.before - noise_N) for x in tried}
         passing = [x for x in tried
                    if x.t > t_needed and x.before - x.after >= MIN_GAIN * noise_N
@@ -608,12 +610,11 @@ def _describe(logs, segmentations, residuals, masks, noise_N, *,
                        and (x.after - best_after <= band or x in passing
                             and x.before - x.after >= RIVAL_GAIN * gain)
                        and _corr(x.pred, chosen.pred, weight) > CONFOUNDED)
-        if (chosen.cand.form in ("linear", "smooth", "curved") and "log" not in rivals
-                and _disjoint(chosen.cand.values, log_id, counted)):
-            rivals += ("log",)
+        apart = (chosen.cand.form in ("linear", "smooth", "curved")
+                 and _disjoint(chosen.cand.values, log_id, counted))
         accepted.append(Described(
             _record(chosen, relative, noise_N, accepted=True, round_=round_,
-                    t_needed=t_needed, rivals=rivals, library=library or {}),
+                    t_needed=t_needed, rivals=rivals, apart=apart, library=library or {}),
             chosen.shown, chosen.cand.sign, r, chosen.pred))
         r = r - chosen.pred
         designs = [d for d in designs if d.cand.variable != chosen.cand.variable]
@@ -633,7 +634,8 @@ class _Tried:
     t: float
     before: float
     after: float
-    shown: np.ndarray      # the variable as plotted: within the period for a periodic one
+    shown: np.ndarray      # the variable as plotted (see _shown)
+    axis: str              # what `shown` is, with its unit
 
 
 def _best_per_variable(tried: Sequence[_Tried], band: float) -> list[_Tried]:
@@ -671,8 +673,8 @@ def _why_not(x: _Tried, t_needed: float, noise: float, min_shrink: float,
 
 
 def _record(x: _Tried, relative: bool, noise: float, *, accepted: bool, round_: int,
-            t_needed: float, rivals: tuple[str, ...] = (), why: str = "",
-            library: Mapping[str, str] = {}) -> Structure:
+            t_needed: float, rivals: tuple[str, ...] = (), apart: bool = False,
+            why: str = "", library: Mapping[str, str] = {}) -> Structure:
     c = x.cand
     unit = UNITS[c.variable]
     size = math.sqrt(float(np.mean(x.full**2)))
@@ -688,10 +690,15 @@ def _record(x: _Tried, relative: bool, noise: float, *, accepted: bool, round_: 
                    + f"; held-out RMS {x.before:.3g} -> {x.after:.3g} N")
     effects, record = _SUGGEST.get((c.variable, c.signed), _SUGGEST.get(
         (c.variable, not c.signed), ("", "")))
-    suggestion = (f"usually {effects}; to pin it down, {record}" if effects else "")
+    suggestion = (f"Usually {effects}; to pin it down, {record}" if effects else "")
     if rivals:
         suggestion += (f". The logs cannot tell it from {', '.join(rivals)} (the same "
                        "prediction): record data that vary them separately")
+    if apart and "log" not in rivals:
+        rivals += ("log",)
+        suggestion += (f". The logs cannot tell it from log: no two logs share a range of "
+                       f"the {c.variable.replace('_', ' ')}, so the curve is as well a shape "
+                       "of each log's own; record two logs over one range of it")
     for effect in LOOKALIKES.get((c.variable, c.signed), ()):
         if effect in library:
             suggestion += (f". {effect} has a shape like it; the library tried it and did "
@@ -701,7 +708,28 @@ def _record(x: _Tried, relative: bool, noise: float, *, accepted: bool, round_: 
                      shrink=shrink, accepted=accepted, description=description,
                      suggestion=suggestion, t=x.t, t_needed=t_needed, parameters=x.dof,
                      period=x.period, unit=unit, round=round_, confounded_with=rivals,
-                     why=why, shape=_shape(x))
+                     why=why, shape=_shape(x), axis=x.axis)
+
+
+def _shown(cand: _Candidate, log_id: np.ndarray, counted: np.ndarray, full: np.ndarray,
+           period: float | None) -> tuple[np.ndarray, str]:
+    """The variable as a plot of the description shows it, and the axis' label: within the
+    period for a periodic one (:func:`_folded`); from each log's middle where the logs lie
+    apart in it (a curve per log, side by side); else as it is."""
+    name = cand.variable.replace("_", " ")
+    unit = f" ({UNITS[cand.variable]})" if UNITS[cand.variable] else ""
+    if cand.form == "hysteresis":
+        return cand.values, f"the force's change since it last turned{unit}"
+    if period is not None:
+        return (_folded(cand, log_id, full, period),
+                f"{name} within the period, each log's phase aligned{unit}")
+    if cand.form in ("linear", "smooth") and _disjoint(cand.values, log_id, counted):
+        out = cand.values.copy()
+        for k in np.unique(log_id):
+            m = log_id == k
+            out[m] -= np.median(cand.values[m & counted]) if (m & counted).any() else 0.0
+        return out, f"{name} from each log's middle{unit}"
+    return cand.values, f"{name}{unit}"
 
 
 def _folded(cand: _Candidate, log_id: np.ndarray, full: np.ndarray, period: float

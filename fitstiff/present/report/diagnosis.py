@@ -176,10 +176,7 @@ def _structure_section(result, logs, segs, after, masks) -> Section:
             even = not u.form.startswith("sign-dependent")
             plotting.plot_structure(ax, d.values[keep], d.residual[keep], d.prediction[keep],
                                     sign=None if even else d.sign[keep], shape=u.shape,
-                                    xlabel=(f"{u.variable.replace('_', ' ')} within the "
-                                            "period, each log's phase aligned"
-                                            if u.period else u.variable.replace('_', ' '))
-                                    + (f" ({u.unit})" if u.unit else ""))
+                                    xlabel=u.axis or u.variable)
             ax.set_title(f"{u.variable.replace('_', ' ')}: {u.form}, {u.size_N:.2g} N",
                          fontsize=9)
         figures = (ReportFigure(
