@@ -196,3 +196,32 @@ def test_a_description_with_a_library_effects_shape_says_the_library_tried_it(lo
     assert first is not None and first.variable == "direction", found
     assert "asymmetry has a shape like it; the library tried it and did not accept it " \
            "(held-out RMS did not fall)" in first.suggestion
+
+
+@pytest.mark.parametrize("case", ["quasi-static", "one log", "masked, no start position"])
+def test_a_ripple_is_found_without_time_in_one_log_and_relative_to_the_start(logs, case):
+    import dataclasses
+
+    logs_, _ = logs
+    masks = [np.ones(len(log), bool) for log in logs_]
+    if case == "quasi-static":            # no time: no time, velocity or acceleration
+        logs_ = [dataclasses.replace(log, time=None, pressure_a=None, pressure_b=None)
+                 for log in logs_]
+    elif case == "one log":               # blocks of one log
+        logs_, masks = logs_[:1], masks[:1]
+    else:                                 # a third of each log excluded, positions relative
+        logs_ = [dataclasses.replace(log, rig=dataclasses.replace(log.rig, start_position=None))
+                 for log in logs_]
+        masks = [np.arange(len(log)) > len(log) // 3 for log in logs_]
+    segs = [segment(log) for log in logs_]
+    r = [e + 0.3 * np.sin(2 * np.pi * log.displacement / 0.7e-3)
+         for log, e in zip(logs_, _noise(logs_, 8))]
+    found = describe_structure(logs_, segs, r, masks, SIGMA)
+    first = _first(found)
+    assert first is not None and first.variable == "position" and first.period == \
+        pytest.approx(0.7, rel=0.05), found
+    tried = {s.variable for s in found}
+    if case == "quasi-static":
+        assert not tried & {"time", "velocity", "acceleration"}
+    if case.startswith("masked"):
+        assert "relative to the start" in first.description
