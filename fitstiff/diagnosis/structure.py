@@ -352,6 +352,11 @@ class _Design:
     def __init__(self, cand: _Candidate, log_id: np.ndarray, weight: np.ndarray):
         self.cand, self.log_id, self.weight = cand, log_id, weight
         self.n_logs = int(log_id.max()) + 1
+        self.own = (log_id[:, None] == np.arange(self.n_logs)[None, :]).astype(float)
+        # the logs lie one after another: per-log sums are sums over these runs of rows
+        self._starts = np.flatnonzero(np.r_[True, np.diff(log_id) != 0])
+        total = self._per_log(weight)
+        self._total = np.where(total > 0, total, 1.0)
 
     def columns(self, train: np.ndarray, period: float | None = None
                 ) -> tuple[np.ndarray, np.ndarray]:
@@ -374,9 +379,8 @@ class _Design:
             # one period, a phase per log: logs far apart along the stroke would need the
             # period to a part in 10^5 to share one phase
             phase = 2 * np.pi * v / period
-            own = self.log_id[:, None] == np.arange(self.n_logs)[None, :]
-            base = np.concatenate([own * np.sin(phase)[:, None], own * np.cos(phase)[:, None]],
-                                  axis=1)
+            base = np.concatenate([self.own * np.sin(phase)[:, None],
+                                   self.own * np.cos(phase)[:, None]], axis=1)
             pen = np.zeros((base.shape[1], base.shape[1]))
         else:                       # smooth; a hysteresis is smooth in the force's travel
             knots = self._knots(v, train)
@@ -398,14 +402,33 @@ class _Design:
                                          for k in range(self.n_logs)
                                          if np.any(train & (self.log_id == k))]))
 
+    def _per_log(self, x: np.ndarray) -> np.ndarray:
+        """Sums over each log's samples (rows), one row per log."""
+        return np.add.reduceat(x, self._starts, axis=0)
+
     def _centre(self, x: np.ndarray) -> np.ndarray:
-        out = x.copy()
-        for k in range(self.n_logs):
-            m = self.log_id == k
-            w = self.weight[m]
-            if w.sum() > 0:
-                out[m] -= (w[:, None] * x[m]).sum(axis=0) / w.sum()
-        return out
+        """Each column less its weighted mean over each log's samples."""
+        w = self.weight if x.ndim == 1 else self.weight[:, None]
+        means = self._per_log(w * x) / (self._total if x.ndim == 1 else self._total[:, None])
+        return x - means[self.log_id]
+
+    def period_rss(self, r: np.ndarray, wt: np.ndarray, periods: np.ndarray) -> np.ndarray:
+        """The training RSS of the periodic description at each of ``periods`` at once:
+        its columns are a sine and a cosine per log, so the least squares fall apart into
+        a 2 x 2 system per log and period (what :meth:`columns` and :func:`_ridge` give one
+        period at a time)."""
+        phase = 2 * np.pi * self.cand.values[:, None] / periods[None, :]
+        sign = self.cand.sign[:, None]
+        sin, cos = self._centre(sign * np.sin(phase)), self._centre(sign * np.cos(phase))
+        ws, wc = wt[:, None] * sin, wt[:, None] * cos
+        ss, cc, sc = self._per_log(ws * sin), self._per_log(wc * cos), self._per_log(ws * cos)
+        rs, rc = self._per_log(r[:, None] * ws), self._per_log(r[:, None] * wc)
+        det = ss * cc - sc**2
+        ok = det > 1e-12 * np.maximum(ss * cc, 1e-300)
+        safe = np.where(ok, det, 1.0)
+        a, b = (cc * rs - sc * rc) / safe, (ss * rc - sc * rs) / safe
+        explained = np.where(ok, a * rs + b * rc, 0.0).sum(axis=0)
+        return float(np.sum(wt * r**2)) - explained
 
 
 def _ridge(x: np.ndarray, r: np.ndarray, pen: np.ndarray, w: np.ndarray) -> np.ndarray:
@@ -427,8 +450,7 @@ def _ridge(x: np.ndarray, r: np.ndarray, pen: np.ndarray, w: np.ndarray) -> np.n
             dof = float(np.trace(np.linalg.solve(m, a)))
         except np.linalg.LinAlgError:
             continue
-        res = r - x @ beta
-        rss = float(np.sum(w * res**2))
+        rss = max(float(np.sum(w * r**2) - 2 * beta @ b + beta @ a @ beta), 0.0)
         gcv = rss / max(n * (1 - dof / n) ** 2, 1e-300)
         if gcv < best:
             best, beta_best = gcv, beta
@@ -462,11 +484,10 @@ def _fit_predict(design: _Design, r: np.ndarray, train: np.ndarray, w: np.ndarra
         return float(np.sum(wt * (r - pred) ** 2)), pred, x.shape[1]
 
     grid = _periods(design.cand.values, design.log_id)
-    scan = [rss(p)[0] for p in grid]
-    k = int(np.argmin(scan))
+    k = int(np.argmin(design.period_rss(r, wt, grid)))
     # refine between the neighbours of the best grid period
     fine = np.geomspace(grid[max(k - 1, 0)], grid[min(k + 1, grid.size - 1)], 21)
-    period = min(fine, key=lambda p: rss(p)[0])
+    period = float(fine[int(np.argmin(design.period_rss(r, wt, fine)))])
     _, pred, dof = rss(period)
     return pred, float(period), dof
 
