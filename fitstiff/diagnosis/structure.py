@@ -260,7 +260,7 @@ def _since_reversal(x: np.ndarray, reversals: np.ndarray) -> np.ndarray:
 
 # ---------------------------------------------------------------------------- candidates
 
-@dataclasses.dataclass(frozen=True)
+@dataclasses.dataclass(frozen=True, eq=False)
 class _Candidate:
     variable: str
     form: str              # linear / smooth / periodic / step
@@ -592,11 +592,9 @@ def _describe(logs, segmentations, residuals, masks, noise_N, *,
         tried = []
         for design in designs:
             pred = np.zeros_like(r)
-            period = None
             for f in range(FOLDS):
                 test = fold == f
-                p, period_f, dof = _fit_predict(design, r, (fold >= 0) & ~test, weight)
-                pred[test] = p[test]
+                pred[test] = _fit_predict(design, r, (fold >= 0) & ~test, weight)[0][test]
             gains = np.bincount(block[counted], weights=(weight * (r**2 - (r - pred) ** 2))
                                 [counted], minlength=n_blocks)
             sd = float(np.std(gains, ddof=1))
@@ -628,7 +626,7 @@ def _describe(logs, segmentations, residuals, masks, noise_N, *,
         gain = chosen.before - chosen.after
         rivals = tuple(x.cand.variable for x in best_by_var
                        if x.cand.variable != chosen.cand.variable
-                       and (x.after - best_after <= band or x in passing
+                       and (x.after - best_after <= band or any(x is y for y in passing)
                             and x.before - x.after >= RIVAL_GAIN * gain)
                        and _corr(x.pred, chosen.pred, weight) > CONFOUNDED)
         apart = (chosen.cand.form in ("linear", "smooth", "curved")
@@ -645,7 +643,7 @@ def _describe(logs, segmentations, residuals, masks, noise_N, *,
     return accepted, last
 
 
-@dataclasses.dataclass
+@dataclasses.dataclass(eq=False)
 class _Tried:
     cand: _Candidate
     pred: np.ndarray       # held-out prediction (its own folds)
