@@ -192,7 +192,10 @@ def test_plot_confusion_draws_on_the_given_axes():
 
 def test_dataset_ids_interleave_families_and_are_reproducible():
     ids = wh.dataset_ids(seeds=2, nulls=4, pair_seeds=1)
-    assert len(ids) == len(set(ids)) == 13 * 2 + 4 + 3 * 2 + 8 + 2 * 2
+    n_ool = len(datasets.OUT_OF_LIBRARY)
+    assert len(ids) == len(set(ids)) == 13 * 2 + 4 + n_ool * 2 + 8 + 2 * 2
+    assert len(datasets.OUT_OF_LIBRARY) == 7 and set(datasets.OOL_VARIABLE) == set(
+        datasets.OUT_OF_LIBRARY)
     assert {i.split("/")[0] for i in ids[: len(ids) // 2 + 8]} == set(wh.FAMILIES)
     a, ta = datasets.make_dataset("single/viscous/3", rate_scale=0.2)
     b, tb = datasets.make_dataset("single/viscous/3", rate_scale=0.2)
@@ -256,3 +259,32 @@ def test_two_missing_effects_that_fail_alone_are_accepted_together():
     assert "error" not in r, r
     assert sorted(r["accepted"]) == ["inertia", "pressure_friction"], wh.describe(r)
     assert r["shrink"] > 0.3
+
+
+@pytest.mark.parametrize("kind", ["tight_spot", "friction_drift", "saturating_pressure",
+                                  "rate_stiffness"])
+def test_each_new_out_of_library_kind_changes_the_force_where_it_should(kind):
+    """Issue 32's kinds in the independent simulator, on clean logs: a tight spot raises the
+    friction level only near its centre, a drift only as time goes on, a saturating law
+    only away from the reference pressure, a rate-dependent stiffness only the transitions."""
+    from fitstiff._testing.withheld import draw_out_of_library
+
+    program = datasets.log_program(1, 6.0, pauses=False, holds=False, sweeps=False)
+    base = rs.Base(sigma0=40e3, Fc=18.0, n=1.2, x0=0.35, supply=4.5e5, dead_a=0.02,
+                   dead_b=0.02, chamber=True)
+    ool = draw_out_of_library(kind, np.random.default_rng(0))
+    if kind == "tight_spot":
+        ool = {"gain": 0.5, "width": 0.4e-3, "centre": 0.35 + 0.5e-3}
+    plain, truth = rs.simulate_log(program, base=base, rate_hz=400.0, clean=True, p_ref=3.0e5)
+    other, _ = rs.simulate_log(program, base=base, rate_hz=400.0, clean=True, p_ref=3.0e5,
+                               out_of_library={kind: ool})
+    diff = np.asarray(other.force) - np.asarray(plain.force)
+    assert np.sqrt(np.mean(diff**2)) > 0.1
+    if kind == "tight_spot":                # the spot at +0.5 mm, not at -0.5 mm and below
+        u = truth["x_piston"]
+        near, away = np.abs(u - 0.5e-3) < 0.2e-3, u < -0.5e-3
+        assert near.any() and away.any()
+        assert np.abs(diff[near]).mean() > 3 * np.abs(diff[away]).mean()
+    if kind == "friction_drift":            # it grows with time
+        early, late = diff[: diff.size // 10], diff[-diff.size // 10:]
+        assert np.abs(early).mean() < np.abs(late).mean()
