@@ -31,7 +31,8 @@ from fitstiff.diagnosis.gap import above_floor, pooled_excess, region_table
 from fitstiff.diagnosis.result import Candidate, Diagnosis
 from fitstiff.diagnosis.screen import Score, collinear_groups, screen
 from fitstiff.diagnosis.select import FoldFit, HeldOut, fold_starts, folds_for, held_out
-from fitstiff.diagnosis.structure import describe_structure
+from fitstiff.diagnosis.structure import (STRUCTURE_ALPHA, STRUCTURE_MIN_SHRINK,
+                                          describe_structure)
 from fitstiff.diagnosis.supermodel import SuperProblem, candidate_names
 from fitstiff.errors import InputError
 from fitstiff.inference.comparison import TIE
@@ -253,7 +254,9 @@ def diagnose(logs: Sequence[Log], *, baseline: str = DEFAULT_MODEL,
         folds=tuple(f.describe([log.name for log in problem.logs]) for f in folds),
         settings={"alpha": alpha, "min_shrink": min_shrink, "min_gain": MIN_GAIN,
                   "screen_level": alpha / m,
-                  "candidates": list(names)},
+                  "candidates": list(names), "structure": structure,
+                  "structure_alpha": STRUCTURE_ALPHA,
+                  "structure_min_shrink": STRUCTURE_MIN_SHRINK},
         verdict=tuple(verdict),
         files=tuple(str(log.path) if log.path else log.name for log in problem.logs),
         timing_s={"setup": clock["setup"] - clock["start"],
