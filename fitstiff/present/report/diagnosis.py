@@ -163,9 +163,12 @@ def _structure_section(result, logs, segs, after, masks) -> Section:
                         "description is accepted by the library's kind of rule: significant "
                         "over the held-out blocks, and it removes a share of the gap above "
                         "the noise floor."))
+    # redrawn from heldout.npz; only what diagnosis.json accepted (the same unless the
+    # samples counted differ from the run's, which the table then still reports)
+    stored = {(u.variable, u.form) for u in result.unexplained_structure if u.accepted}
     found = [d for d in accepted_descriptions(logs, segs, after, masks,
                                               float(result.gap["noise_N"]))
-             if d.structure.accepted]
+             if (d.structure.variable, d.structure.form) in stored]
     figures = ()
     if found:
         fig = Figure(figsize=(5.0 * len(found), 3.8), layout="constrained")
