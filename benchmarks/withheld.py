@@ -15,12 +15,20 @@ detectability calibration (found rate of effects at or above the size the diagno
 as detectable at 80 % power) and the confusion matrix (true x first named effect), written to
 ``benchmarks/results/withheld.json`` and ``withheld_confusion.png``.
 
+``--plan`` runs the closed loop of issue 33 instead (:mod:`fitstiff._testing.plan_loop`): each
+dataset is diagnosed, given the planned experiment of :func:`fitstiff.planning.plan` when its
+diagnosis ends with a tie, an untestable candidate, a wrong or missing name or an unexplained
+structure (a null always, for its strongest candidate), the programs are run on the dataset's
+rig and the logs diagnosed again; the same with the naive experiment (the longest log
+replayed). Written to ``benchmarks/results/plan_loop.json`` (:func:`score_loop`'s table).
+
 Resumable (finished datasets are kept in the JSON and skipped); one line per dataset.
 
     python benchmarks/withheld.py --quick                  # 3 effects, 3 nulls, 1 ool, 1 missing
     python benchmarks/withheld.py --workers 2              # the full run (~210 datasets)
     python benchmarks/withheld.py --family single --seeds 5 --nulls 0
     python benchmarks/withheld.py --effects dwell_stiction --nulls 5   # what withholds it
+    python benchmarks/withheld.py --plan --family missing --seeds 4 --nulls 0
 """
 
 from __future__ import annotations
@@ -35,6 +43,7 @@ from pathlib import Path
 
 import numpy as np
 
+from fitstiff._testing.plan_loop import run_closed_loop, score_loop
 from fitstiff._testing.withheld import FAMILIES
 from fitstiff._testing.withheld_scoring import (dataset_ids, describe, plot_confusion,
                                                 run_dataset, score)
@@ -42,6 +51,7 @@ from fitstiff._testing.withheld_scoring import (dataset_ids, describe, plot_conf
 REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / "benchmarks" / "results"
 JSON_PATH = RESULTS / "withheld.json"
+LOOP_PATH = RESULTS / "plan_loop.json"
 FIGURE_PATH = RESULTS / "withheld_confusion.png"
 
 
@@ -64,9 +74,14 @@ def save_figure(summary: Mapping[str, object], path: Path = FIGURE_PATH) -> None
 
 # ----------------------------------------------------------------------------------- runs
 
-def _save(path: Path, records: Mapping[str, Mapping[str, object]], figure: bool) -> None:
+def _save(path: Path, records: Mapping[str, Mapping[str, object]], figure: bool,
+          loop: bool = False) -> None:
     from fitstiff.io.output import to_jsonable, write_atomic
 
+    if loop:
+        write_atomic(path, json.dumps(to_jsonable({"summary": score_loop(list(records.values())),
+                                                   "datasets": records}), indent=1))
+        return
     summary = score(records)
     write_atomic(path, json.dumps(to_jsonable({"summary": summary, "datasets": records}),
                                   indent=1))
@@ -75,7 +90,7 @@ def _save(path: Path, records: Mapping[str, Mapping[str, object]], figure: bool)
 
 
 def run_many(ids: Sequence[str], *, workers: int = 2, rate_scale: float = 1.0,
-             max_crashes: int = 2, residuals: Path | None = None
+             max_crashes: int = 2, residuals: Path | None = None, loop: bool = False
              ) -> Iterable[dict[str, object]]:
     """Diagnose ``ids`` in a pool of ``workers`` processes, a fresh process per dataset
     (compiled code does not pile up; a crash loses one dataset, not the run). A dataset
@@ -86,7 +101,8 @@ def run_many(ids: Sequence[str], *, workers: int = 2, rate_scale: float = 1.0,
     while pending:
         with cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx,
                                     max_tasks_per_child=1) as pool:
-            futures = {pool.submit(run_dataset, d, rate_scale, residuals=residuals): d
+            futures = {(pool.submit(run_closed_loop, d, rate_scale) if loop else
+                        pool.submit(run_dataset, d, rate_scale, residuals=residuals)): d
                        for d in pending}
             try:
                 for f in cf.as_completed(futures):
@@ -120,7 +136,12 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--no-figure", action="store_true")
     parser.add_argument("--residuals", type=Path, default=None, metavar="DIR",
                         help="keep each dataset's held-out residuals in DIR (one .npz each)")
+    parser.add_argument("--plan", action="store_true",
+                        help="the closed loop of the planned experiment (issue 33) instead; "
+                             f"default --json {LOOP_PATH.relative_to(REPO)}")
     args = parser.parse_args(argv)
+    if args.plan and args.json == JSON_PATH:
+        args.json = LOOP_PATH
     records: dict[str, dict] = {}
     if args.json.exists():
         records = json.loads(args.json.read_text()).get("datasets", {})
@@ -136,17 +157,32 @@ def main(argv: Sequence[str] | None = None) -> None:
           f"with {args.workers} worker(s)", flush=True)
     start = time.perf_counter()
     for r in run_many(todo, workers=args.workers, rate_scale=args.rate_scale,
-                      residuals=args.residuals):
+                      residuals=args.residuals, loop=args.plan):
         records[r["id"]] = r
-        print(describe(r), flush=True)
-        _save(args.json, records, not args.no_figure)
+        print(_loop_line(r) if args.plan else describe(r), flush=True)
+        _save(args.json, records, not args.no_figure, args.plan)
     if not todo and records:
-        _save(args.json, records, not args.no_figure)
+        _save(args.json, records, not args.no_figure, args.plan)
+    if args.plan:
+        print(json.dumps(score_loop([v for k, v in records.items() if k in set(ids)]),
+                         default=float))
+        return
     summary = score({k: v for k, v in records.items() if k in set(ids)})
     print(f"wall {time.perf_counter() - start:.0f} s for {len(todo)} datasets")
     print(json.dumps({k: summary[k] for k in ("single", "null", "ool", "pair", "missing",
                                                "detectability", "wall_s")},
                      default=float)[:4000])
+
+
+def _loop_line(r: Mapping[str, object]) -> str:
+    if "error" in r:
+        return f"{r['id']}: ERROR {r['error']}"
+    if r.get("reason") is None:
+        return f"{r['id']}: no plan needed ({r['before']['accepted']}) {r['wall_s']:.0f} s"
+    plans = "; ".join(" vs ".join(p["separates"]) for p in r.get("plan", [])) or "none"
+    return (f"{r['id']}: {r['reason']}; before {r['before']['accepted']}, plan [{plans}] "
+            f"({r.get('plan_s', 0):.0f} s), naive {r['after_naive']['accepted']}, planned "
+            f"{r['after_planned']['accepted']} (target {r['target']}) {r['wall_s']:.0f} s")
 
 
 if __name__ == "__main__":

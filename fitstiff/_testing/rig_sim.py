@@ -80,7 +80,7 @@ import numpy as np
 
 from fitstiff.io.log import Log, Rig
 
-__all__ = ["Segment", "Program", "Base", "SensorNoise", "render", "simulate_log",
+__all__ = ["Segment", "Program", "Base", "SensorNoise", "render", "rounded", "simulate_log",
            "leg", "pause", "sweep", "BORE", "STROKE"]
 
 BORE = 0.032
@@ -166,6 +166,14 @@ def render(program: Program, rate_hz: float, substeps: int, *,
     # whole logged samples
     n_log = (xf.size - 1) // substeps + 1
     xf = xf[: (n_log - 1) * substeps + 1]
+    return rounded(np.arange(xf.size) * dt, xf, smooth_s=smooth_s)
+
+
+def rounded(t: np.ndarray, xf: np.ndarray, *, smooth_s: float = 0.006
+            ) -> tuple[np.ndarray, np.ndarray]:
+    """A fine motion with its corners rounded by a Hann window of ``smooth_s`` (what the
+    rig's actuator makes of sharp setpoints; constant stretches stay constant inside)."""
+    dt = float(t[1] - t[0])
     width = max(3, int(round(smooth_s / dt)) | 1)
     if width > 3 and xf.size > 2 * width:
         kernel = np.hanning(width + 2)[1:-1]
@@ -173,8 +181,7 @@ def render(program: Program, rate_hz: float, substeps: int, *,
         pad = width // 2
         xp = np.concatenate([np.full(pad, xf[0]), xf, np.full(pad, xf[-1])])
         xf = np.convolve(xp, kernel, mode="valid")
-        # exact constants where the raw program holds still (float rounding aside)
-    return np.arange(xf.size) * dt, xf
+    return t, xf
 
 
 # ---------------------------------------------------------------------------- the rig

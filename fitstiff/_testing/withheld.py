@@ -21,17 +21,20 @@ Families (dataset ids ``family/what/seed``; the id seeds the draws):
 ``pair``     two withheld effects (sizes from the upper part of their ranges); right answer:
              both.
 ``missing``  an effect without its excitation (dwell stiction without standstills, pressure
-             friction at one supply pressure); right answer: "not testable", nothing named.
+             friction at one supply pressure, inertia at slow speeds without sweeps or fast
+             moves); right answer: "not testable", nothing named.
 """
 
 from __future__ import annotations
 
 import math
 import zlib
+from collections.abc import Mapping
 
 import numpy as np
 
 from fitstiff._testing import rig_sim as rs
+from fitstiff.io.log import Log
 
 EFFECTS = ("viscous", "stribeck", "asymmetry", "pressure_friction", "dwell_stiction",
            "heat_transfer", "leakage", "inertia", "force_drift", "time_delay",
@@ -45,7 +48,10 @@ OOL_VARIABLE = {"ripple": "position", "load_cell_hysteresis": "force",
                 "force_quantisation": None, "tight_spot": "position",
                 "friction_drift": "time", "saturating_pressure": "pressure",
                 "rate_stiffness": "velocity"}
-MISSING = ("dwell_stiction", "pressure_friction")
+MISSING = ("dwell_stiction", "pressure_friction", "inertia")
+#: the speed (mm/s) and sample rate (Hz) of every log of ``missing/inertia``: reversals at this
+#: speed accelerate the piston by under 0.1 m/s^2 over the rig's rounded corners
+SLOW = (0.5, 100.0)
 FAMILIES = ("single", "null", "ool", "pair", "missing")
 
 #: effect sizes: (low, high) of the main parameter in the diagnosis' display unit, drawn
@@ -185,6 +191,8 @@ def make_dataset(dataset_id: str, *, rate_scale: float = 1.0, substeps: int = SU
             flags = {"pauses": False, "holds": False, "sweeps": True}
         elif parts[1] == "pressure_friction":
             one_pressure = True
+        elif parts[1] == "inertia":
+            flags = {"pauses": True, "holds": False, "sweeps": False}
     if short:
         flags = {"pauses": False, "holds": False, "sweeps": False}
     baseline = "dahl" if "chamber" in effects else "chamber+dahl"
@@ -206,8 +214,10 @@ def make_dataset(dataset_id: str, *, rate_scale: float = 1.0, substeps: int = SU
     logs, programs = [], []
     for i in range(3):
         speed = LOGS[i][0] * _loguniform(rng, 0.8, 1.25)
-        program = log_program(i, speed, **flags)
         rate = LOGS[i][1] * rate_scale
+        if dataset_id.startswith("missing/inertia/"):
+            speed, rate = SLOW[0], SLOW[1] * rate_scale
+        program = log_program(i, speed, **flags)
         base = rs.Base(sigma0=sigma0, Fc=fc, n=n_exp, x0=float(positions[i]),
                        supply=float(supplies[i]), dead_a=float(dead_a), dead_b=float(dead_b),
                        chamber=True)
@@ -226,6 +236,36 @@ def make_dataset(dataset_id: str, *, rate_scale: float = 1.0, substeps: int = SU
              "base": {"sigma0_N_per_mm": sigma0 / 1e3, "Fc_N": fc, "n": n_exp,
                       "dead_a_mm": dead_a * 1e3, "dead_b_mm": dead_b * 1e3},
              "noise": {"force_N": noise.force_N, "ar1": noise.ar1,
+                       "displacement_um": noise.displacement_um,
                        "quantum_um": noise.quantum_um, "pressure_mbar": noise.pressure_mbar},
+             "p_ref_Pa": p_ref, "substeps": substeps,
              "excitation": {**flags, "one_pressure": one_pressure}, "logs": programs}
     return logs, truth
+
+
+def simulate_program(truth: Mapping[str, object], time_s: np.ndarray, displacement_m: np.ndarray,
+                     *, supply_bar: float, start_position_mm: float, name: str,
+                     seed: int = 0) -> Log:
+    """One more log of a dataset: the displacement setpoints ``(time_s, displacement_m)`` (a
+    planned program's CSV) played on the dataset's rig with its truth and noise, through the
+    independent simulator. The rig follows the setpoints linearly between them, its corners
+    rounded as :func:`~fitstiff._testing.rig_sim.render` rounds them."""
+    substeps = int(truth.get("substeps", SUBSTEPS))
+    t = np.asarray(time_s, float)
+    rate = 1.0 / float(np.median(np.diff(t)))
+    fine = rs.rounded(*rs.piecewise_linear_fine(t, np.asarray(displacement_m, float),
+                                                substeps))
+    b, n = truth["base"], truth["noise"]
+    base = rs.Base(sigma0=b["sigma0_N_per_mm"] * 1e3, Fc=b["Fc_N"], n=b["n"],
+                   x0=start_position_mm * 1e-3, supply=supply_bar * 1e5,
+                   dead_a=b["dead_a_mm"] * 1e-3, dead_b=b["dead_b_mm"] * 1e-3,
+                   chamber=truth["baseline"] != "dahl")
+    noise = rs.SensorNoise(force_N=n["force_N"], ar1=n["ar1"],
+                           displacement_um=n.get("displacement_um", 0.7),
+                           quantum_um=n["quantum_um"], pressure_mbar=n["pressure_mbar"])
+    rng = np.random.default_rng([zlib.crc32(f"{truth['id']}/{name}".encode()), seed])
+    log, _ = rs.simulate_log(rs.Program(()), base=base, effects=truth["effects"], noise=noise,
+                             rate_hz=rate, substeps=substeps, rng=rng, name=name,
+                             p_ref=float(truth["p_ref_Pa"]),
+                             out_of_library=truth["out_of_library"], fine=fine)
+    return log

@@ -27,7 +27,7 @@ __all__ = ["main", "SUBCOMMANDS"]
 
 # order = order in --help
 SUBCOMMANDS = ("inspect", "stiffness", "simulate", "fit", "posterior", "report", "diagnose",
-               "fleet", "demo")
+               "plan", "fleet", "demo")
 
 
 class _Parser(argparse.ArgumentParser):

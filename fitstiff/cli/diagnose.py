@@ -4,6 +4,7 @@ the gap shrinks (DESIGN §6)."""
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import io
 import json
 
@@ -12,10 +13,14 @@ import numpy as np
 from fitstiff.cli._common import (add_log_arguments, add_out_argument, input_paths, logs_from_args,
                                   model_spec, reading_options)
 from fitstiff.cli.fit import add_data_arguments, problem_options
+from fitstiff.cli.plan import planned_names, write_plan
 from fitstiff.diagnosis import ALPHA, HELDOUT, MIN_SHRINK, RESULT, diagnose
 from fitstiff.diagnosis.supermodel import CANDIDATES
 from fitstiff.io.output import OutputDir, to_jsonable
 from fitstiff.physics.model import DEFAULT_MODEL
+from fitstiff.planning import PLAN_DIR, plan
+from fitstiff.planning.plan import MAX_PROGRAMS
+from fitstiff.planning.rivals import confusions
 
 __all__ = ["add_parser", "run"]
 
@@ -41,6 +46,11 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     group.add_argument("--structure", action=argparse.BooleanOptionalAction, default=True,
                        help="describe what the unexplained held-out residual follows "
                             "(position, time, pressure, ...; default on)")
+    group.add_argument("--plan", action=argparse.BooleanOptionalAction, default=True,
+                       help="when the diagnosis ends with a tie, a rival, an untestable or an "
+                            "undecided candidate, plan the next experiment (diagnosis.json's "
+                            f"next_experiment, the programs in {PLAN_DIR}/; limits from the "
+                            "logs, see fitstiff plan; default on)")
     add_data_arguments(group)
     parser.add_argument("--json", action="store_true", help="print diagnosis.json to stdout")
     add_out_argument(parser)
@@ -56,15 +66,21 @@ def _npz(arrays) -> bytes:
 
 def run(args) -> int:
     options = problem_options(args)
-    with OutputDir(args.out, inputs=input_paths(args), planned=[RESULT, HELDOUT],
+    planned = [RESULT, HELDOUT] + (planned_names(MAX_PROGRAMS, prefix=PLAN_DIR + "/")
+                                   if args.plan else [])
+    with OutputDir(args.out, inputs=input_paths(args), planned=planned,
                    options={"baseline": args.baseline, "candidates": args.candidates,
                             "alpha": args.alpha, "min_shrink": args.min_shrink,
-                            "structure": args.structure, **options,
+                            "structure": args.structure, "plan": args.plan, **options,
                             "reading": reading_options(args)}) as out:
         logs = logs_from_args(args)
         result = diagnose(logs, baseline=args.baseline, candidates=args.candidates,
                           alpha=args.alpha, min_shrink=args.min_shrink,
                           structure=args.structure, **options)
+        if args.plan and confusions(result):
+            next_experiment = plan(result, logs, **options)
+            result = dataclasses.replace(result, next_experiment=next_experiment.to_dict())
+            write_plan(out, next_experiment, prefix=PLAN_DIR + "/")
         out.write_json(RESULT, result.to_dict())
         out.write_bytes(HELDOUT, _npz(result.heldout_arrays()))
         out.finish()

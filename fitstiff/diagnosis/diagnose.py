@@ -150,6 +150,8 @@ def diagnose(logs: Sequence[Log], *, baseline: str = DEFAULT_MODEL,
                 ho = held_out(sp, folds, fold_start, active, extra=entries)
             tried[s.effect] = _judge(sp, s, ho, fold_start, current=current,
                                      noise=noise_pooled, min_shrink=min_shrink)
+        # a tie of an earlier round stays on the record (the loser is screened again)
+        tied = {e: c.tied_with for e, c in decided.items() if c.tied_with}
         for s in scores:
             if s.effect in tried:
                 t = tried[s.effect]
@@ -161,7 +163,7 @@ def diagnose(logs: Sequence[Log], *, baseline: str = DEFAULT_MODEL,
                     converged=t.heldout.converged,
                     regions_improved=_improved(sp, noise, masks, current, t.heldout),
                     parameters=_display(sp, s.one_step, "one_step"), round=round_,
-                    why=t.why)
+                    why=t.why, tied_with=tied.get(s.effect, ""))
             else:
                 why = (f"not testable: {s.reason}" if s.reason else
                        "significant, but a stronger candidate passed in this round (it is "
@@ -172,13 +174,15 @@ def diagnose(logs: Sequence[Log], *, baseline: str = DEFAULT_MODEL,
                     effect=s.effect, score=s.statistic, dof=s.dof, p_value=s.p_value,
                     log_p_value=s.log_p,
                     testable=s.testable, round=round_, why=why,
-                    parameters=_display(sp, s.one_step, "one_step"))
+                    parameters=_display(sp, s.one_step, "one_step"),
+                    tied_with=tied.get(s.effect, ""))
         passing = [v for v in tried.values() if v.passes]
         if passing:
             chosen, theta, hold, losers = _choose(sp, passing, theta, hold, active, weights,
                                                   noise_pooled)
             for effect, why in losers.items():
-                decided[effect] = dataclasses.replace(decided[effect], why=why)
+                decided[effect] = dataclasses.replace(decided[effect], why=why,
+                                                      tied_with=chosen.effect)
             new, ho = [chosen.effect], chosen.heldout
         else:
             with _phase(spent, "refits"):
@@ -232,6 +236,8 @@ def diagnose(logs: Sequence[Log], *, baseline: str = DEFAULT_MODEL,
                  if structure else ())
     clock["structure"] = time.perf_counter()
     tie = _tie_order(sp, scores, accepted, theta, hold, active, weights, level=alpha / m)
+    decided = {e: dataclasses.replace(c, first_p_value=first[e].p_value)
+               for e, c in decided.items()}
     ranked = sorted(decided.values(), key=lambda c: (not c.accepted,
                                                      accepted.index(c.effect) if c.accepted
                                                      else 0,

@@ -41,6 +41,12 @@ class Candidate:
     #: (:meth:`fitstiff.physics.terms.base.Term.reading`: pressure_friction's reference pressure and
     #: per-bar basis), for accepted effects
     reading: str = ""
+    #: the p-value of its first screen (on the baseline, before any acceptance): what it
+    #: explained of the baseline's gap, which an accepted effect may have taken since
+    first_p_value: float | None = None
+    #: the accepted effect it tied with on held-out data (told apart by the fits to all the
+    #: data only, :mod:`fitstiff.planning` proposes the experiment that separates them)
+    tied_with: str = ""
 
     @property
     def p_text(self) -> str:
@@ -121,6 +127,10 @@ class Diagnosis:
     #: what the unexplained held-out residual follows (:mod:`fitstiff.diagnosis.structure`):
     #: the accepted descriptions in order, then the best of every other variable tried
     unexplained_structure: tuple[Structure, ...] = ()
+    #: the next experiment (``plan.json``'s content, :mod:`fitstiff.planning`), when the
+    #: diagnosis ended with a tie, a rival, an untestable or an undecided candidate and a plan
+    #: was made (``fitstiff diagnose`` makes it); empty otherwise
+    next_experiment: Mapping[str, object] = dataclasses.field(default_factory=dict)
     #: held-out residuals (model - measured force, N) per log: ``"before"`` (the baseline)
     #: and ``"after"`` (the final model); kept beside diagnosis.json as ``heldout.npz``
     heldout: Mapping[str, tuple[np.ndarray, ...]] = dataclasses.field(
@@ -157,6 +167,7 @@ class Diagnosis:
             "verdict": list(self.verdict),
             "files": list(self.files),
             "timing_s": dict(self.timing_s),
+            "next_experiment": dict(self.next_experiment) or None,
         })
 
     @classmethod
@@ -173,7 +184,8 @@ class Diagnosis:
             detectability=data["detectability"], skipped=data.get("skipped", {}),
             folds=tuple(data.get("folds", ())), settings=data.get("settings", {}),
             verdict=tuple(data.get("verdict", ())), files=tuple(data.get("files", ())),
-            timing_s=data.get("timing_s", {}))
+            timing_s=data.get("timing_s", {}),
+            next_experiment=data.get("next_experiment") or {})
 
     def candidate(self, effect: str) -> Candidate:
         for c in self.candidates:
@@ -204,6 +216,10 @@ class Diagnosis:
             lines.append("  unexplained structure (held out):")
             lines += [f"    {u.description}" for u in found]
         lines += [f"  {v}" for v in self.verdict]
+        programs = self.next_experiment.get("programs", []) if self.next_experiment else []
+        if programs:
+            lines.append("  next experiment (plan/):")
+            lines += [f"    {p['file']}: {p['why']}" for p in programs]
         return "\n".join(lines)
 
 

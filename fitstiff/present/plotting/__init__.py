@@ -18,6 +18,8 @@ in s.
 :func:`plot_friction_levels`            sliding friction against pressure, one point per log
 :func:`plot_contributions_over_stroke`  chamber against seal restoring force over the stroke
                                         (:func:`contributions_over_stroke` gives the numbers)
+:func:`plot_program`                    a planned program's displacement and the rivals' predicted
+                                        forces on it
 :func:`plot_corner`                     corner plot of posterior samples (takes a *Figure*)
 :func:`plot_trace`, :func:`plot_autocorr`  MCMC diagnostics of one parameter's chain
 ======================================  ===========================================================
@@ -36,6 +38,7 @@ from __future__ import annotations
 from fitstiff.present.plotting._common import DIRECTION_COLORS, REGION_COLORS
 from fitstiff.present.plotting.chains import plot_autocorr, plot_corner, plot_trace
 from fitstiff.present.plotting.loops import plot_loop, reversal_zoom_samples, reversal_zoom_window
+from fitstiff.present.plotting.programs import plot_program
 from fitstiff.present.plotting.residuals import (plot_friction_levels, plot_gap_heatmap,
                                                  plot_residual_signature, plot_residuals,
                                                  plot_structure,
@@ -45,6 +48,6 @@ from fitstiff.present.plotting.stroke import (StrokeContributions, contributions
 
 __all__ = ["DIRECTION_COLORS", "REGION_COLORS", "StrokeContributions",
            "contributions_over_stroke", "plot_autocorr", "plot_contributions_over_stroke",
-           "plot_corner", "plot_friction_levels", "plot_gap_heatmap", "plot_loop",
+           "plot_corner", "plot_friction_levels", "plot_gap_heatmap", "plot_loop", "plot_program",
            "plot_residual_signature", "plot_residuals", "plot_structure", "plot_trace", "reversal_zoom_samples",
            "reversal_zoom_window", "sliding_friction_level"]

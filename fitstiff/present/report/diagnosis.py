@@ -85,6 +85,9 @@ def diagnosis_report(run: RunDirectory, *, draws: int) -> Report:
     ]
     if result.unexplained_structure:
         sections.insert(1, _structure_section(result, logs, segs, after, masks))
+    planned = _plan_section(run.path)
+    if planned is not None:
+        sections.insert(1, planned)
     return Report(f"Diagnosis: {result.baseline}", _diagnosis_verdict(result), summary,
                    tuple(sections), summary_title="Candidate effects")
 
@@ -188,6 +191,66 @@ def _structure_section(result, logs, segs, after, masks) -> Section:
             "held-out prediction; black, the description fitted to all samples (a "
             "sign-dependent one drawn times the direction).", fig),)
     return Section("What the unexplained gap follows", html=html, figures=figures)
+
+
+def _plan_section(path) -> Section | None:
+    """The next experiment (``plan/`` of the diagnosis directory, written by fitstiff diagnose
+    or fitstiff plan): its table and each program with the rivals' predicted forces."""
+    from fitstiff.planning import PLAN, PLAN_DIR
+    from fitstiff.planning.plan import PREDICTED, Plan, read_predicted
+    from fitstiff.present.reopen import read_json
+
+    folder = path / PLAN_DIR
+    if not (folder / PLAN).is_file():
+        return None
+    try:
+        plan = Plan.from_dict(read_json(folder / PLAN))
+        with np.load(folder / PREDICTED) as stored:
+            arrays = dict(stored)
+        drawn = [read_predicted(arrays, k) for k in range(1, len(plan.programs) + 1)]
+    except (OSError, KeyError, ValueError, TypeError) as exc:
+        raise InputError(str(folder), "the plan of the diagnosis", f"cannot be read ({exc})",
+                         "run fitstiff plan again") from None
+    rows = []
+    for p in plan.programs:
+        e, n = p.expected, p.naive
+        if "z" in e:
+            expect, naive = f"z {e['z']:.3g}", f"z {n.get('z', 0.0):.3g}"
+        else:
+            expect = (f"{e['parameter']} from {fmt(e['detectable_size'], 3)} {e['unit']}"
+                      if e.get("detectable_size") is not None else "-")
+            naive = (f"from {fmt(n['detectable_size'], 3)} {n['unit']}"
+                     if n.get("detectable_size") is not None else "not detectable")
+        rows.append([f"{PLAN_DIR}/{p.file}", " vs ".join(p.separates), p.kind,
+                     p.program.get("family", ""), fmt(p.supply_bar, 3),
+                     fmt(p.start_position_mm, 4), fmt(p.duration_s, 3), expect, naive, p.why])
+    html = (html_table(["program", "separates", "kind", "family", "supply bar", "start mm",
+                        "duration s", "expected", "log replayed", "why"], rows,
+                       numeric_from=4, prose=(9,))
+            + paragraph("What the logs could not settle, and the program of the next rig run "
+                        "that settles it: the displacement (relative to the start position) in "
+                        "the CSV, run at the supply pressure and start position given. "
+                        "'expected' is the z of the test between the two rivals on the new "
+                        "record after both refit (with what the logs already say about their "
+                        "parameters), or the smallest size of an effect it detects at "
+                        f"{plan.to_dict()['method']['power']:.0%} power; 'log replayed' the "
+                        "same for the longest log run again for as long."))
+    for u in plan.unplanned:
+        html += paragraph(f"Not planned: {' vs '.join(u['separates'])}: {u['why']}")
+    figures = ()
+    if drawn:
+        fig = Figure(figsize=(12, 3.2 * len(drawn)), layout="constrained")
+        axes = fig.subplots(len(drawn), 2, squeeze=False)
+        for (motion, forces), (t, x, predicted), p in zip(axes, drawn, plan.programs):
+            plotting.plot_program(motion, t, x, forces_N=predicted, force_ax=forces)
+            motion.set_title(f"{p.file}: {p.program.get('family', '')} at "
+                             f"{p.supply_bar:.3g} bar", fontsize=9)
+            forces.set_title(" vs ".join(p.separates).replace("_", " "), fontsize=9)
+        figures = (ReportFigure(
+            "next_experiment", "The planned programs: displacement against time (left) and "
+            "the rival models' predicted force on it (right; for one effect against its "
+            "absence, the effect at the size the program detects).", fig),)
+    return Section("Next experiment", html=html, figures=figures)
 
 
 def _diagnosis_loop(log, before, after, result, i) -> ReportFigure:

@@ -1,0 +1,183 @@
+"""What a diagnosis could not settle, as pairs of rival explanations (:class:`Confusion`), and
+the rivals fitted to the logs.
+
+Kinds, in the order a plan takes them:
+
+``tie``         two candidates passed on held-out data within a tie of each other, told apart
+                only by their fits to all the data (``Candidate.tied_with``);
+``rival``       an accepted effect and the strongest candidate its acceptance silenced: not
+                accepted, but significant at the first screen, on the baseline's gap (both
+                explain the same misfit; a look-alike read in its place is the failure the
+                plan guards against);
+``untestable``  a candidate the logs cannot test (no excitation: no pauses for dwell
+                stiction, one pressure for pressure-dependent friction ...) against its
+                absence;
+``undecided``   a candidate whose screen is significant on the final model but that the
+                held-out rule did not accept, against its absence;
+``requested``   what the user named (``--separate a,b`` or ``--separate a``).
+
+A pair of effects is fitted as the final model with the one in place of the other; a single
+effect as the final model with the effect at its null (the separation is then computed per
+unit of its main parameter).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+
+from fitstiff.diagnosis.result import Diagnosis
+from fitstiff.diagnosis.supermodel import spec_token
+from fitstiff.errors import InputError
+from fitstiff.inference.fitting import fit
+from fitstiff.io.log import Log
+from fitstiff.physics.model import build_model, parse_spec
+from fitstiff.physics.params import named_params
+from fitstiff.physics.terms import TERMS
+from fitstiff.planning.separation import Rival
+
+__all__ = ["Confusion", "ABSENT", "KINDS", "confusions", "Rivals"]
+
+ABSENT = "absent"
+KINDS = ("tie", "rival", "untestable", "undecided", "requested")
+
+
+@dataclasses.dataclass(frozen=True)
+class Confusion:
+    """Two explanations the logs do not tell apart: ``separates`` is ``(a, b)`` (effect
+    names, ``b`` may be :data:`ABSENT`), ``kind`` one of :data:`KINDS`, ``why`` in words."""
+
+    kind: str
+    separates: tuple[str, str]
+    why: str
+
+    @property
+    def single(self) -> bool:
+        return self.separates[1] == ABSENT
+
+
+def confusions(diagnosis: Diagnosis, *, separate: Sequence[str] | None = None
+               ) -> list[Confusion]:
+    """The diagnosis' confusions, in the order of :data:`KINDS` (``separate``: the user's
+    pair or single effect instead)."""
+    known = {c.effect for c in diagnosis.candidates} | set(diagnosis.accepted)
+    if separate:
+        names = list(dict.fromkeys(separate))
+        unknown = [n for n in names if n not in TERMS]
+        if unknown or not 1 <= len(names) <= 2:
+            raise InputError(None, f"--separate {','.join(separate)}",
+                             "names one or two effects" if not unknown else
+                             f"'{unknown[0]}' is not an effect",
+                             "give one effect (against its absence) or two, e.g. "
+                             "--separate heat_transfer,leakage")
+        pair = (names[0], names[1] if len(names) == 2 else ABSENT)
+        return [Confusion("requested", pair, "asked for")]
+    out: list[Confusion] = []
+    m = max(len(diagnosis.candidates), 1)
+    level = diagnosis.settings.get("alpha", 0.05) / m
+    gap = diagnosis.gap.get("final_heldout_rms_N", 0.0) or 0.0
+    noise = diagnosis.gap.get("noise_N", 0.0) or 0.0
+    for c in diagnosis.candidates:
+        if c.tied_with and not c.accepted and c.tied_with in diagnosis.accepted:
+            out.append(Confusion("tie", (c.tied_with, c.effect),
+                                 f"{c.effect} fitted the held-out data as well as "
+                                 f"{c.tied_with}: the logs tell them apart by the fit to all "
+                                 "the data only"))
+    taken = {frozenset(c.separates) for c in out}
+    for effect in diagnosis.accepted:
+        silenced = sorted((c for c in diagnosis.candidates
+                           if not c.accepted and c.first_p_value is not None
+                           and c.first_p_value < level and c.testable
+                           and frozenset((effect, c.effect)) not in taken),
+                          key=lambda c: c.first_p_value)
+        if silenced:
+            c = silenced[0]
+            out.append(Confusion("rival", (effect, c.effect),
+                                 f"{c.effect} explained part of the baseline's gap too "
+                                 f"(first screen p = {c.first_p_value:.2g}) until {effect} "
+                                 "was accepted: the two may read one effect"))
+            taken.add(frozenset((effect, c.effect)))
+    for effect, entry in diagnosis.detectability.items():
+        if not entry.get("testable", True) and effect not in diagnosis.accepted:
+            out.append(Confusion("untestable", (effect, ABSENT),
+                                 f"the logs cannot test {effect}: {entry.get('reason', '')}"))
+    if gap > noise * 1.05:
+        for c in diagnosis.candidates:
+            if (not c.accepted and c.testable and c.p_value < level and not c.tied_with
+                    and not any(c.effect in x.separates for x in out)):
+                out.append(Confusion("undecided", (c.effect, ABSENT),
+                                     f"{c.effect} is significant on the final model "
+                                     f"(p = {c.p_text}) but was not accepted: {c.why}"))
+    return [c for c in out if all(e == ABSENT or e in known or e in TERMS
+                                  for e in c.separates)]
+
+
+class Rivals:
+    """The rivals of confusions, fitted to the logs (one fit per model, cached).
+
+    Args:
+        logs: the diagnosis' logs.
+        final_model: the diagnosis' final model spec (baseline plus accepted effects).
+        problem_kw: the diagnosis' data options (denoise, sample_range, weights, skip).
+    """
+
+    def __init__(self, logs: Sequence[Log], final_model: str, *, seed: int = 0,
+                 **problem_kw):
+        self.logs = list(logs)
+        self.terms = [name for name, _ in parse_spec(final_model)]
+        self.seed = seed
+        self.problem_kw = problem_kw
+        self._fits: dict[tuple, Rival] = {}
+
+    def spec(self, effects: Sequence[str], *, drop: Sequence[str] = ()) -> str:
+        terms = [t for t in self.terms if t not in drop]
+        return "+".join(spec_token(t) for t in terms + [e for e in effects if e not in terms])
+
+    def fitted(self, name: str, spec: str, *, fix: Mapping[str, float | None] = {}) -> Rival:
+        key = (spec, tuple(sorted(fix.items())))
+        if key not in self._fits:
+            result = fit(self.logs, spec, fix=dict(fix), seed=self.seed, **self.problem_kw)
+            if not result.converged:
+                raise InputError(None, f"the rival fit of {spec}",
+                                 f"did not converge ({result.message})",
+                                 "check the logs fit the diagnosis' final model, or name "
+                                 "the rivals with --separate")
+            self._fits[key] = Rival.from_fit(name, result)
+        return self._fits[key]
+
+    def pair(self, confusion: Confusion) -> tuple[Rival, Rival]:
+        """Rivals ``a`` and ``b`` of a pair: the final model with each in place of both."""
+        a, b = confusion.separates
+        return (self.fitted(a, self.spec([a], drop=[b])),
+                self.fitted(b, self.spec([b], drop=[a])))
+
+    def single(self, effect: str):
+        """``(rival, direction, name, param)``: the final model with ``effect`` at its null
+        (``absent``), the direction of a unit (SI) of the effect's main parameter over the
+        rival's entries (every element of a vector), the parameter's name and its
+        :class:`~fitstiff.physics.params.Param`."""
+        spec = self.spec([effect])
+        model = build_model(spec)
+        index = [i for i, t in enumerate(model.terms) if t.name == effect]
+        if not index:
+            raise InputError(None, f"--separate {effect}", "is not a term of this model",
+                             "name an effect of the library")
+        fix: dict[str, float | None] = {}
+        main = None
+        for i, p, names in named_params(model):
+            if i != index[0]:
+                continue
+            for n in names:
+                fix[n] = p.null if p.null is not None else None
+            if p.null is not None and main is None:
+                main = (p, names)
+        if main is None:
+            raise InputError(None, f"effect '{effect}'", "has no parameter with a null value",
+                             "separate it from another effect instead")
+        rival = self.fitted(ABSENT, spec, fix=fix)
+        direction = np.array([1.0 if n in main[1] else 0.0 for n in rival.par.names])
+        param, names = main
+        return rival, direction, names[0] if param.size is None else param.field, param
+

@@ -1,0 +1,185 @@
+"""How well a proposed program tells two rival models apart, after the rival refits.
+
+A rival is a model fitted to the logs (:class:`Rival`): its values, its free parameters and
+what the logs already say about them (the information matrix, the inverse of the fit's
+covariance). On a program the rivals' predicted outputs (force, and the chamber pressures
+where the logs record closed chambers) come from the same compiled simulator the fit uses
+(:meth:`~fitstiff.physics.model.Model.run`).
+
+The separation that survives refitting, linearised: if rival A is true, rival B is refitted
+to the logs **and** the new record. Its misfit on the new record grows by
+
+    lambda = min_d  |W (r - J d)|^2 + d' P d,      r = y_A - y_B  (whitened by W),
+
+``J`` the derivative of B's prediction on the program by its free parameters and the new
+record's nuisances (force offset, initial friction state), ``P`` the information the logs
+already hold on B's parameters (none on the new record's nuisances). ``lambda`` is the
+noncentrality of the likelihood-ratio test between the two on the new record; its square
+root the expected z. A single candidate effect against its absence is the same computation
+per unit of the effect's main parameter (``r`` the derivative of the prediction by it at its
+null), which gives the smallest size the program detects (:func:`detectable_size`).
+
+The noise is the logs' floor: per sample ``sigma`` with lag-one correlation ``rho``, whitened
+as white noise of the AR(1) long-run variance ``sigma^2 (1 + rho) / (1 - rho)`` (conservative
+for the slow differences the rivals make).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Sequence
+
+import equinox as eqx
+import numpy as np
+from scipy import stats
+
+from fitstiff._jax import jax, jnp
+from fitstiff.physics.drive import Drive
+from fitstiff.physics.model import Model
+from fitstiff.physics.params import Parameterization
+
+__all__ = ["Noise", "Rival", "Outputs", "outputs", "noncentrality", "detectable_size",
+           "POWER", "LEVEL"]
+
+#: power and two-sided level at which :func:`detectable_size` states a size (the
+#: diagnosis' detectability uses the same)
+POWER = 0.8
+LEVEL = 0.05
+_RCOND = 1e-10
+
+
+@dataclasses.dataclass(frozen=True)
+class Noise:
+    """The logs' noise floor: force ``sigma_N`` with lag-one correlation ``rho``; chamber
+    pressures ``pressure_Pa`` (``None`` where the logs record no closed-chamber pressure)."""
+
+    sigma_N: float
+    rho: float = 0.0
+    pressure_Pa: float | None = None
+
+    def scale(self, sigma: float) -> float:
+        """White-noise equivalent of ``sigma`` under this correlation (long-run variance)."""
+        rho = min(max(self.rho, 0.0), 0.95)
+        return sigma * math.sqrt((1 + rho) / (1 - rho))
+
+    def to_dict(self) -> dict[str, object]:
+        return dataclasses.asdict(self)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Rival:
+    """One explanation of the logs, fitted to them.
+
+    Attributes:
+        name: what it stands for (an effect name, or ``"absent"``).
+        model: the fitted model (SI values in its fields).
+        par: every parameter of the model (the fit's fixed ones too).
+        free: per entry of ``par``: refitted on new data (free in the fit).
+        information: ``P`` over the free entries, the information the logs hold on them
+            (SI): the pseudo-inverse of the fit's covariance, none where the logs determine
+            nothing.
+        values: every entry's fitted value (SI).
+    """
+
+    name: str
+    model: Model
+    par: Parameterization
+    free: np.ndarray
+    information: np.ndarray
+    values: np.ndarray
+
+    @classmethod
+    def from_fit(cls, name: str, result) -> Rival:
+        """A rival from a :class:`~fitstiff.inference.fitting.FitResult`."""
+        par = Parameterization(result.model)
+        fitted = result.problem.par.names
+        free = np.array([n in fitted for n in par.names])
+        order = [fitted.index(n) for n in par.names if n in fitted]
+        cov = np.asarray(result.covariance, dtype=float)[np.ix_(order, order)]
+        ok = np.all(np.isfinite(cov), axis=0)
+        info = np.zeros(cov.shape)
+        if ok.any():
+            info[np.ix_(ok, ok)] = np.linalg.pinv(cov[np.ix_(ok, ok)], rcond=_RCOND,
+                                                  hermitian=True)
+        values = np.array(list(par.values(result.model).values()), dtype=float)
+        return cls(name, result.model, par, free, info, values)
+
+
+@dataclasses.dataclass(frozen=True)
+class Outputs:
+    """A rival's whitened outputs on one program and their derivatives: ``y`` (n,),
+    ``jac`` (n, free parameters), ``nuisance`` (n, 2: force offset, initial friction state)."""
+
+    y: np.ndarray
+    jac: np.ndarray
+    nuisance: np.ndarray
+
+
+def _whitened(x, nuis, model, par, drive, weights):
+    m = par.physical_to_model(x, model)
+    d = dataclasses.replace(drive, force_offset=nuis[0], friction_state0=nuis[1])
+    pred = m.run(d)
+    parts = [pred.force * weights[0]]
+    if weights.shape[0] > 1:
+        parts += [pred.pressure_a * weights[1], pred.pressure_b * weights[1]]
+    return jnp.concatenate(parts)
+
+
+@eqx.filter_jit
+def _with_jacobian(x, nuis, model, par, drive, weights):
+    def f(x, nuis):
+        return _whitened(x, nuis, model, par, drive, weights)
+
+    y = f(x, nuis)
+    jx, jn = jax.jacfwd(f, argnums=(0, 1))(x, nuis)
+    return y, jx, jn
+
+
+def outputs(rival: Rival, drive: Drive, noise: Noise) -> Outputs:
+    """The rival's whitened outputs on ``drive`` and their derivatives by every entry of its
+    ``par`` and by the new record's nuisances."""
+    model = rival.model
+    x = jnp.asarray(rival.values, dtype=float)
+    weights = [1.0 / noise.scale(noise.sigma_N)]
+    if noise.pressure_Pa is not None and "closed" in drive.modes:
+        weights.append(1.0 / noise.scale(noise.pressure_Pa))
+    y, jx, jn = _with_jacobian(x, jnp.zeros(2), model, rival.par, drive,
+                               jnp.asarray(weights))
+    return Outputs(np.asarray(y), np.asarray(jx), np.asarray(jn))
+
+
+def noncentrality(r: np.ndarray, jac: np.ndarray, nuisance: np.ndarray,
+                  information: np.ndarray, scale: np.ndarray) -> float:
+    """``min_d |r - [J N] d|^2 + d_J' P d_J`` (whitened ``r``, ``J``, ``N``): how much a refit
+    of the model with Jacobian ``J`` (its parameters already known to the information ``P``)
+    and free nuisances ``N`` leaves of ``r``. ``scale`` (one per column of ``J``) conditions
+    the solve (a parameter's size); the result does not depend on it."""
+    s = np.where(np.isfinite(scale) & (scale > 0), scale, 1.0)
+    a = np.concatenate([jac * s, nuisance], axis=1)
+    prior = np.zeros((a.shape[1], a.shape[1]))
+    prior[:s.size, :s.size] = information * np.outer(s, s)
+    finite = np.all(np.isfinite(a), axis=0)
+    a, prior = a[:, finite], prior[np.ix_(finite, finite)]
+    h = a.T @ a + prior
+    b = a.T @ r
+    d = np.linalg.pinv(h, rcond=_RCOND, hermitian=True) @ b
+    left = float(r @ r - b @ d)
+    return max(left, 0.0)
+
+
+def detectable_size(per_unit: float, *, power: float = POWER, level: float = LEVEL) -> float:
+    """The smallest size (in the unit ``per_unit`` was computed for) a two-sided test at
+    ``level`` detects with ``power``, given the noncentrality of a unit size."""
+    if not per_unit > 0:
+        return math.inf
+    z = stats.norm.isf(level / 2) + stats.norm.ppf(power)
+    return float(z / math.sqrt(per_unit))
+
+
+def sizes(values: Sequence[float]) -> np.ndarray:
+    """Column scales for :func:`noncentrality`: each parameter's size (1e-3 of the largest
+    where it is zero)."""
+    v = np.abs(np.asarray(values, dtype=float))
+    floor = 1e-3 * (v.max() if v.size and v.max() > 0 else 1.0)
+    return np.maximum(v, floor)

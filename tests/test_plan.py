@@ -1,0 +1,213 @@
+"""What to record next (issue 33): confusions, the separation after refits, the program
+families inside the rig's limits, and a plan end to end."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from fitstiff.diagnosis.result import Candidate, Diagnosis
+from fitstiff.errors import InputError
+from fitstiff.io.log import Log, Rig
+from fitstiff.physics.programs import TriangleCycles
+from fitstiff.physics.simulate import Noise as SimNoise
+from fitstiff.physics.simulate import simulate
+from fitstiff.planning import Limits, Plan, plan
+from fitstiff.planning.families import FAMILIES, Choice, choices, naive_choice
+from fitstiff.planning.rivals import ABSENT, confusions
+from fitstiff.planning.separation import detectable_size, noncentrality
+from fitstiff.units import MM
+
+RIG = Rig(bore=0.032, rod=0.0, stroke=0.7, start_position=0.35, supply_pressure=5e5)
+
+
+# -- the separation ---------------------------------------------------------------------------
+@pytest.mark.parametrize("seed", range(4))
+def test_noncentrality_is_the_misfit_left_after_the_refit_with_the_logs_information(seed):
+    rng = np.random.default_rng(seed)
+    n, k = 60, 4
+    jac = rng.standard_normal((n, k)) * rng.uniform(0.1, 10, size=k)
+    nuis = np.stack([np.ones(n), rng.standard_normal(n)], axis=1)
+    r = rng.standard_normal(n)
+    root = rng.standard_normal((k, k))
+    info = root @ root.T
+    info[0] = info[:, 0] = 0.0          # the logs know nothing of the first parameter
+    # the same minimum by an augmented least squares: [J N; chol(P) 0] d = [r; 0]
+    chol = np.linalg.cholesky(info[1:, 1:])
+    a = np.concatenate([np.concatenate([jac, nuis], axis=1),
+                        np.concatenate([np.zeros((k - 1, 1)), chol.T, np.zeros((k - 1, 2))],
+                                       axis=1)])
+    b = np.concatenate([r, np.zeros(k - 1)])
+    d, *_ = np.linalg.lstsq(a, b, rcond=None)
+    expected = float(np.sum((b - a @ d) ** 2))
+    got = noncentrality(r, jac, nuis, info, np.abs(rng.standard_normal(k)) + 0.1)
+    assert got == pytest.approx(expected, rel=1e-8)
+
+
+def test_noncentrality_is_zero_when_the_refit_can_mimic_the_difference():
+    rng = np.random.default_rng(0)
+    jac = rng.standard_normal((50, 3))
+    r = jac @ np.array([0.3, -1.0, 2.0]) + 0.7           # a parameter change and an offset
+    nuis = np.stack([np.ones(50), np.zeros(50)], axis=1)
+    assert noncentrality(r, jac, nuis, np.zeros((3, 3)), np.ones(3)) == pytest.approx(
+        0.0, abs=1e-9)
+    # the logs pin the parameters: the same difference now shows
+    assert noncentrality(r, jac, nuis, 1e6 * np.eye(3), np.ones(3)) > 0.9 * float(
+        np.sum((r - r.mean()) ** 2))
+
+
+def test_the_detectable_size_is_where_a_test_at_5_percent_has_80_percent_power():
+    z = 1.959963984540054 + 0.8416212335729143
+    assert detectable_size(4.0) == pytest.approx(z / 2.0)
+    assert detectable_size(0.0) == math.inf
+
+
+# -- the programs -----------------------------------------------------------------------------
+def test_limits_default_to_what_the_logs_show_and_refuse_what_no_rig_can():
+    sim = simulate("chamber+dahl", TriangleCycles(amplitudes_mm=(0.2, 1.0), rate_mm_s=2.0),
+                   rig=RIG, seed=0, rate_hz=500.0)
+    limits = Limits.from_logs([sim.log])
+    assert limits.rate_hz == pytest.approx(500.0)
+    assert limits.max_speed_mm_s == pytest.approx(2.0, rel=0.05)
+    assert limits.stroke_range_mm == pytest.approx((35.0, 665.0))
+    assert limits.pressures_bar == (5.0,)
+    assert limits.max_duration_s == pytest.approx(sim.log.time[-1])
+    given = Limits.from_logs([sim.log], pressures_bar=(3.0, 6.0), max_duration_s=12.0)
+    assert given.pressures_bar == (3.0, 6.0) and given.max_duration_s == 12.0
+    with pytest.raises(InputError, match="--stroke-range"):
+        Limits(max_duration_s=5, max_speed_mm_s=1, stroke_range_mm=(10, 5),
+               pressures_bar=(5,), rate_hz=100)
+    with pytest.raises(InputError, match="--pressures"):
+        Limits(max_duration_s=5, max_speed_mm_s=1, stroke_range_mm=(5, 10),
+               pressures_bar=(), rate_hz=100)
+    bare = Log(name="bare", displacement=sim.log.displacement, force=sim.log.force,
+               time=sim.log.time, rig=Rig())
+    with pytest.raises(InputError, match="stroke_range_mm, pressures_bar"):
+        Limits.from_logs([bare])
+
+
+def test_every_gridded_program_keeps_to_the_limits():
+    limits = Limits(max_duration_s=12.0, max_speed_mm_s=8.0, stroke_range_mm=(300.0, 306.0),
+                    pressures_bar=(4.0, 6.0), rate_hz=200.0)
+    found = list(choices(limits, supply_bar=4.0, start_position_mm=303.0))
+    assert {c.family for c in found} == set(FAMILIES)
+    for c in found:
+        t, x = c.sample(limits)
+        assert t.size == limits.samples() and x[0] == 0.0
+        assert np.max(np.abs(x)) / MM <= 3.0 + 1e-9, c                 # the room either way
+        speed = np.max(np.abs(np.diff(x))) * limits.rate_hz / MM
+        assert speed <= limits.max_speed_mm_s * 1.06, c      # legs of whole samples
+        assert abs(x[-1]) < 1e-9, c                                    # ends where it began
+
+
+def test_the_naive_program_replays_the_longest_log():
+    sim = simulate("chamber+dahl", TriangleCycles(amplitudes_mm=(0.2,), rate_mm_s=1.0),
+                   rig=RIG, seed=0, rate_hz=100.0)
+    limits = Limits.from_logs([sim.log], max_duration_s=2 * float(sim.log.time[-1]))
+    naive = naive_choice(sim.log)
+    t, x = naive.sample(limits)
+    n = len(sim.log)
+    logged = sim.log.displacement - sim.log.displacement[0]
+    assert np.allclose(x[:n], logged) and np.all(x[n:] == x[n - 1])
+    assert naive.supply_bar == 5.0 and naive.start_position_mm == pytest.approx(350.0)
+
+
+# -- confusions -------------------------------------------------------------------------------
+def _diagnosis(candidates, *, accepted=(), detectability=None, final=None):
+    return Diagnosis(
+        baseline="chamber+dahl", final_model=final or "+".join(["chamber+dahl", *accepted]),
+        gap={"heldout_rms_N": 1.0, "noise_N": 0.2, "final_heldout_rms_N": 0.21},
+        candidates=tuple(candidates), accepted=tuple(accepted), unexplained=(),
+        noise_N={"log": {"sigma_N": 0.2, "rho": 0.1}}, detectability=detectability or {},
+        skipped={}, folds=(), settings={"alpha": 0.05}, verdict=(), files=("log",))
+
+
+def test_confusions_name_ties_silenced_rivals_and_untestable_candidates():
+    c = [Candidate("heat_transfer", 50.0, 1, 1e-12, True, accepted=True,
+                   first_p_value=1e-12),
+         Candidate("leakage", 40.0, 1, 0.5, True, tied_with="heat_transfer",
+                   first_p_value=1e-10),
+         Candidate("maxwell_slip", 9.0, 2, 0.4, True, first_p_value=1e-4),
+         Candidate("viscous", 1.0, 1, 0.6, True, first_p_value=0.3),
+         Candidate("dwell_stiction", 0.0, 3, 1.0, False)]
+    d = _diagnosis(c, accepted=("heat_transfer",), detectability={
+        "dwell_stiction": {"testable": False, "reason": "the logs do not excite it"}})
+    found = confusions(d)
+    assert [(x.kind, x.separates) for x in found] == [
+        ("tie", ("heat_transfer", "leakage")),
+        ("rival", ("heat_transfer", "maxwell_slip")),
+        ("untestable", ("dwell_stiction", ABSENT))]
+    assert confusions(d, separate=["viscous"])[0].separates == ("viscous", ABSENT)
+    with pytest.raises(InputError, match="not an effect"):
+        confusions(d, separate=["rubber_band"])
+    # a diagnosis that settled everything has nothing to plan
+    assert confusions(_diagnosis(c[3:4])) == []
+
+
+# -- a plan, end to end -----------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def pause_free():
+    """Two logs without a standstill: dwell stiction cannot be tested on them."""
+    logs = []
+    for k, (start, supply) in enumerate(((0.30, 4e5), (0.40, 6e5))):
+        rig = Rig(bore=0.032, rod=0.0, stroke=0.7, start_position=start,
+                  supply_pressure=supply)
+        sim = simulate("chamber+dahl", TriangleCycles(amplitudes_mm=(0.1, 0.4, 1.0),
+                                                      rate_mm_s=2.0),
+                       rig=rig, seed=k, rate_hz=200.0, name=f"log{k}",
+                       noise=SimNoise(force_N=0.1, displacement_um=0.0, pressure_mbar=0.0))
+        logs.append(sim.log)
+    return logs
+
+
+def test_a_plan_for_an_untestable_effect_adds_the_standstills_it_needs(pause_free):
+    d = _diagnosis([Candidate("dwell_stiction", 0.0, 3, 1.0, False)], detectability={
+        "dwell_stiction": {"testable": False, "reason": "no pauses"}})
+    d = Diagnosis.from_dict(d.to_dict() | {
+        "noise_N": {log.name: {"sigma_N": 0.1, "rho": 0.0} for log in pause_free},
+        "gap": {"heldout_rms_N": 0.1, "noise_N": 0.1, "final_heldout_rms_N": 0.1}})
+    limits = Limits.from_logs(pause_free, max_duration_s=10.0, pressures_bar=(4.0, 6.0))
+    result = plan(d, pause_free, limits=limits)
+    assert len(result.programs) == 2 and not result.unplanned
+    first, second = result.programs
+    assert first.separates == ("dwell_stiction", ABSENT) and first.kind == "untestable"
+    # the program stands still (a pause of 0.2 s or more), where the logs never do
+    still = np.flatnonzero(np.diff(first.displacement_mm) == 0)
+    assert still.size * (1 / limits.rate_hz) >= 0.2
+    assert first.expected["detectable_size"] > 0
+    assert first.naive["detectable_size"] is None           # a replayed log cannot test it
+    assert (second.supply_bar, second.start_position_mm) != (first.supply_bar,
+                                                            first.start_position_mm)
+    back = Plan.from_dict(json.loads(json.dumps(result.to_dict())))
+    assert back.to_dict() == result.to_dict()
+    files = result.files()
+    header, *rows = files["program_1.csv"].decode().splitlines()
+    assert header == "time_s,displacement_mm" and len(rows) == limits.samples()
+    assert set(first.predicted_N) == {"dwell_stiction", ABSENT}
+
+
+def test_a_pair_both_fitted_is_separated_by_its_z(pause_free):
+    d = _diagnosis([Candidate("viscous", 9.0, 1, 1e-5, True, accepted=True,
+                              first_p_value=1e-5),
+                    Candidate("stribeck", 8.0, 1, 0.3, True, first_p_value=1e-4)],
+                   accepted=("viscous",))
+    d = Diagnosis.from_dict(d.to_dict() | {
+        "noise_N": {log.name: {"sigma_N": 0.1, "rho": 0.0} for log in pause_free}})
+    limits = Limits.from_logs(pause_free, max_duration_s=8.0, max_speed_mm_s=20.0)
+    result = plan(d, pause_free, limits=limits)
+    assert [p.separates for p in result.programs] == [("viscous", "stribeck")] * 2
+    e = result.programs[0].expected
+    assert e["z"] == pytest.approx(math.sqrt(e["noncentrality"]))
+    assert e["noncentrality"] == pytest.approx(min(e["noncentrality_if"].values()))
+    # the chosen program separates at least as well as replaying a log for as long
+    assert e["z"] >= result.programs[0].naive["z"]
+
+
+def test_choices_round_trip_their_description():
+    c = Choice("cycles", {"amplitude_mm": 0.3, "rate_mm_s": 2.0, "pause_s": 1.0, "cycles": 3},
+               5.0, 350.0)
+    assert c.describe() == {"family": "cycles", "amplitude_mm": 0.3, "rate_mm_s": 2.0,
+                            "pause_s": 1.0, "cycles": 3}
