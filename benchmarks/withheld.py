@@ -132,6 +132,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--limit", type=int, default=None, help="run at most this many")
     parser.add_argument("--effects", nargs="+", default=None, metavar="EFFECT",
                         help="only the datasets that withhold one of these (nulls are kept)")
+    parser.add_argument("--ids", nargs="+", default=None, metavar="ID",
+                        help="these dataset ids instead (e.g. missing/inertia/0 null/3)")
     parser.add_argument("--json", type=Path, default=JSON_PATH)
     parser.add_argument("--no-figure", action="store_true")
     parser.add_argument("--residuals", type=Path, default=None, metavar="DIR",
@@ -147,6 +149,8 @@ def main(argv: Sequence[str] | None = None) -> None:
         records = json.loads(args.json.read_text()).get("datasets", {})
     ids = dataset_ids(families=args.family, seeds=args.seeds, nulls=args.nulls,
                       pair_seeds=args.pair_seeds, quick=args.quick)
+    if args.ids:
+        ids = list(args.ids)
     if args.effects:
         ids = [d for d in ids if d.startswith("null/")
                or set(d.split("/")[1].split("+")) & set(args.effects)]

@@ -38,7 +38,7 @@ def test_the_command_line_limits_malloc_arenas_unless_the_user_did():
 #: (README, "Layout"); ``_testing`` (simulators and references for tests and benchmarks) sits
 #: on top and nothing of the library imports it
 LAYERS = (("", "__init__", "errors", "units", "_jax", "_malloc", "_interrupts", "data"),
-          ("signal",), ("io",), ("segments",), ("physics",), ("inference",), ("diagnosis",),
+          ("signal",), ("io",), ("segments",), ("physics",), ("inference",), ("diagnosis",), ("planning",),
           ("fleet",), ("present",), ("cli", "__main__"), ("_testing",))
 
 
