@@ -5,6 +5,8 @@ The flow, each step a verb with a result noun (and a ``fitstiff`` subcommand)::
     load_logs -> segment -> build_model -> fit -> sample_posterior -> diagnose -> write_report
        Log    Segmentation    Model     FitResult    Posterior       Diagnosis    report.html
 
+and from a diagnosis to the next rig run: ``plan(diagnosis, logs) -> Plan``.
+
 ``import fitstiff`` is cheap: the names below are imported on first use (JAX and the solvers
 load only when a model, fit, posterior or diagnosis is asked for).
 """
@@ -28,6 +30,7 @@ _LAZY = {
     "sample_posterior": "fitstiff.inference.posterior", "Posterior": "fitstiff.inference.posterior",
     "simulate": "fitstiff.physics.simulate", "Noise": "fitstiff.physics.simulate",
     "diagnose": "fitstiff.diagnosis", "Diagnosis": "fitstiff.diagnosis",
+    "plan": "fitstiff.planning", "Plan": "fitstiff.planning", "Limits": "fitstiff.planning",
     "write_report": "fitstiff.present.report",
     "fit_fleet": "fitstiff.fleet",
 }

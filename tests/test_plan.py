@@ -9,6 +9,7 @@ import math
 import numpy as np
 import pytest
 
+from conftest import CHROMIUM, check_renders_in_chromium
 from fitstiff.diagnosis.result import Candidate, Diagnosis
 from fitstiff.errors import InputError
 from fitstiff.io.log import Log, Rig
@@ -211,3 +212,63 @@ def test_choices_round_trip_their_description():
                5.0, 350.0)
     assert c.describe() == {"family": "cycles", "amplitude_mm": 0.3, "rate_mm_s": 2.0,
                             "pause_s": 1.0, "cycles": 3}
+
+
+# -- the command line -------------------------------------------------------------------------
+@pytest.mark.slow
+def test_diagnose_plans_the_untestable_and_plan_and_report_follow(tmp_path):
+    """End to end on the independent simulator's logs without a standstill: the diagnosis
+    cannot test dwell stiction, so ``fitstiff diagnose`` plans (``next_experiment``,
+    ``plan/``), the report draws the programs, and ``fitstiff plan`` answers a question of
+    the user's with other limits; bad input exits 2 with one line."""
+    import subprocess
+    import sys
+
+    from fitstiff._testing.withheld import make_dataset
+    from fitstiff.physics.simulate import write_log
+
+    logs, _ = make_dataset("missing/dwell_stiction/1", short=True)
+    paths = []
+    for log in logs:
+        write_log(log, tmp_path / f"{log.name}.csv")
+        paths.append(str(tmp_path / f"{log.name}.csv"))
+    out, mine = tmp_path / "out", tmp_path / "mine"
+
+    def cli(*argv):
+        return subprocess.run([sys.executable, "-m", "fitstiff", *argv], capture_output=True,
+                              text=True, check=False)
+
+    for argv in (["diagnose", *paths, "--candidates", "dwell_stiction,viscous", "--out",
+                  str(out)], ["report", str(out)],
+                 ["plan", str(out), "--out", str(mine), "--separate", "viscous",
+                  "--max-duration", "6", "--pressures", "3", "6", "--max-programs", "2"]):
+        proc = cli(*argv)
+        assert proc.returncode == 0, proc.stderr
+    data = json.loads((out / "diagnosis.json").read_text())
+    assert data["detectability"]["dwell_stiction"]["testable"] is False
+    planned = data["next_experiment"]["programs"]
+    assert [p["separates"] for p in planned] == [["dwell_stiction", "absent"]] * 2
+    assert json.loads((out / "plan" / "plan.json").read_text()) == data["next_experiment"]
+    for p in planned:
+        header = (out / "plan" / p["file"]).read_text().splitlines()[0]
+        assert header == "time_s,displacement_mm"
+    report = next(out.glob("*.html"))
+    page = report.read_text()
+    assert "Next experiment" in page and "next_experiment" in page
+    if CHROMIUM is not None:
+        check_renders_in_chromium(report, tmp_path)
+    mine_plan = json.loads((mine / "plan.json").read_text())
+    assert [p["separates"] for p in mine_plan["programs"]] == [["viscous", "absent"]] * 2
+    assert mine_plan["limits"]["pressures_bar"] == [3.0, 6.0]
+    assert {p["supply_bar"] for p in mine_plan["programs"]} <= {3.0, 6.0}
+    assert all(p["duration_s"] <= 6.0 + 1e-9 for p in mine_plan["programs"])
+    assert (mine / "manifest.json").is_file()
+    for argv, fragment in ((["plan", str(mine), "--out", str(tmp_path / "x")],
+                            "holds none of"),
+                           (["plan", str(out), "--out", str(tmp_path / "y"),
+                             "--max-programs", "0"], "--max-programs 0: must be at least 1"),
+                           (["plan", str(out), "--out", str(tmp_path / "z"),
+                             "--separate", "rubber_band"], "'rubber_band' is not an effect")):
+        proc = cli(*argv)
+        lines = proc.stderr.strip().splitlines()
+        assert proc.returncode == 2 and len(lines) == 1 and fragment in lines[0], proc.stderr

@@ -279,6 +279,12 @@ def plan(diagnosis: Diagnosis, logs: Sequence[Log], *, limits: Limits | None = N
             unplanned.append({"separates": list(confusion.separates), "kind": confusion.kind,
                               "why": f"its rivals could not be fitted: {exc}"})
             continue
+        settled = _settled_by_logs(confusion, scorer, noise)
+        if settled:
+            spent["rivals"] += time.perf_counter() - t0
+            unplanned.append({"separates": list(confusion.separates), "kind": confusion.kind,
+                              "why": settled})
+            continue
         t1 = time.perf_counter()
         runs = _search(scorer, limits, logs)
         naive = scorer.score(naive_choice(naive_log))
@@ -307,6 +313,22 @@ def plan(diagnosis: Diagnosis, logs: Sequence[Log], *, limits: Limits | None = N
                 noise=noise, diagnosis={"final_model": diagnosis.final_model,
                                         "files": list(diagnosis.files)},
                 seed=seed, timing_s={**spent, "total": time.perf_counter() - start})
+
+
+def _settled_by_logs(confusion: Confusion, scorer: _Scorer, noise: Noise) -> str:
+    """Why a rival pair needs no experiment (the logs already prefer one by more than
+    :data:`Z_SETTLES` squared in their whitened misfit, AR(1)-deflated), or ``""``. Ties are
+    always planned (held out, the logs could not tell them apart)."""
+    if confusion.kind != "rival" or scorer.a is None:
+        return ""
+    rho = min(max(noise.rho, 0.0), 0.95)
+    gap = (scorer.b.cost - scorer.a.cost) * (1 - rho) / (1 + rho)
+    if abs(gap) <= Z_SETTLES**2:
+        return ""
+    better, worse = ((scorer.a.name, scorer.b.name) if gap > 0
+                     else (scorer.b.name, scorer.a.name))
+    return (f"the logs already tell them apart: {better} fits them better than {worse} by "
+            f"a chi-square of {abs(gap):.3g} (above {Z_SETTLES**2:.3g})")
 
 
 def _public(score: Mapping[str, object]) -> dict[str, object]:

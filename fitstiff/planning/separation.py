@@ -80,6 +80,7 @@ class Rival:
             (SI): the pseudo-inverse of the fit's covariance, none where the logs determine
             nothing.
         values: every entry's fitted value (SI).
+        cost: the fit's whitened sum of squares on the logs (for comparing rivals there).
     """
 
     name: str
@@ -88,6 +89,7 @@ class Rival:
     free: np.ndarray
     information: np.ndarray
     values: np.ndarray
+    cost: float = float("nan")
 
     @classmethod
     def from_fit(cls, name: str, result) -> Rival:
@@ -103,7 +105,7 @@ class Rival:
             info[np.ix_(ok, ok)] = np.linalg.pinv(cov[np.ix_(ok, ok)], rcond=_RCOND,
                                                   hermitian=True)
         values = np.array(list(par.values(result.model).values()), dtype=float)
-        return cls(name, result.model, par, free, info, values)
+        return cls(name, result.model, par, free, info, values, float(result.cost))
 
 
 @dataclasses.dataclass(frozen=True)

@@ -322,4 +322,9 @@ def _diagnosis_verdict(result) -> Verdict:
         headline += (" Part of the gap stays unexplained (see the heat map)" if not follows
                      else " Part of the gap stays unexplained; it follows "
                      + " and ".join(follows) + " (see what the unexplained gap follows)") + "."
+    programs = (result.next_experiment or {}).get("programs", [])
+    if programs:
+        questions = list(dict.fromkeys(" against ".join(p["separates"]) for p in programs))
+        headline += (f" Next experiment: {len(programs)} programs settle "
+                     + "; ".join(questions) + " (see the next experiment).")
     return Verdict(status, headline, tuple(result.verdict))
