@@ -66,9 +66,7 @@ def _npz(arrays) -> bytes:
 
 def run(args) -> int:
     options = problem_options(args)
-    planned = [RESULT, HELDOUT] + (planned_names(MAX_PROGRAMS, prefix=PLAN_DIR + "/")
-                                   if args.plan else [])
-    with OutputDir(args.out, inputs=input_paths(args), planned=planned,
+    with OutputDir(args.out, inputs=input_paths(args), planned=[RESULT, HELDOUT],
                    options={"baseline": args.baseline, "candidates": args.candidates,
                             "alpha": args.alpha, "min_shrink": args.min_shrink,
                             "structure": args.structure, "plan": args.plan, **options,
@@ -77,13 +75,21 @@ def run(args) -> int:
         result = diagnose(logs, baseline=args.baseline, candidates=args.candidates,
                           alpha=args.alpha, min_shrink=args.min_shrink,
                           structure=args.structure, **options)
-        if args.plan and confusions(result):
-            next_experiment = plan(result, logs, **options)
+        next_experiment = (plan(result, logs, **options)
+                           if args.plan and confusions(result) else None)
+        if next_experiment is not None:
             result = dataclasses.replace(result, next_experiment=next_experiment.to_dict())
-            write_plan(out, next_experiment, prefix=PLAN_DIR + "/")
         out.write_json(RESULT, result.to_dict())
         out.write_bytes(HELDOUT, _npz(result.heldout_arrays()))
         out.finish()
+    if next_experiment is not None:
+        # as fitstiff plan DIR would write it (its own manifest: fitstiff plan may replace it)
+        with OutputDir(out.path / PLAN_DIR, inputs=[out.path / RESULT, *input_paths(args)],
+                       planned=planned_names(MAX_PROGRAMS),
+                       options={"diagnosis": str(out.path),
+                                "limits": next_experiment.limits.to_dict()}) as planned:
+            write_plan(planned, next_experiment)
+            planned.finish()
     if args.json:
         print(json.dumps(to_jsonable(result.to_dict()), indent=2))
     else:

@@ -230,18 +230,19 @@ class _Scorer:
 
     def predicted(self, choice: Choice, expected: Mapping[str, object]
                   ) -> dict[str, np.ndarray]:
-        """The rivals' predicted force (N) on ``choice``; for a single effect, the final
-        model without it and with it at the size the program detects."""
+        """The rivals' predicted force (N) on ``choice``, in the order of ``separates``; for
+        a single effect, the final model with it at the size the program detects, then
+        without it."""
         drive, _, _ = self.drive(choice)
         if self.a is not None:
             return {r.name: np.asarray(r.model.predict(drive)) for r in (self.a, self.b)}
-        out = {ABSENT: np.asarray(self.b.model.predict(drive))}
+        absent = np.asarray(self.b.model.predict(drive))
         size = expected.get("detectable_size")
-        if size is not None:
-            x = self.b.values + self.direction * self.param.to_si(size) / self.direction.sum()
-            model = self.b.par.physical_to_model(x, self.b.model)
-            out[self.confusion.separates[0]] = np.asarray(model.predict(drive))
-        return out
+        if size is None:
+            return {ABSENT: absent}
+        x = self.b.values + self.direction * self.param.to_si(size) / self.direction.sum()
+        model = self.b.par.physical_to_model(x, self.b.model)
+        return {self.confusion.separates[0]: np.asarray(model.predict(drive)), ABSENT: absent}
 
 
 def plan(diagnosis: Diagnosis, logs: Sequence[Log], *, limits: Limits | None = None,

@@ -18,8 +18,8 @@ in s.
 :func:`plot_friction_levels`            sliding friction against pressure, one point per log
 :func:`plot_contributions_over_stroke`  chamber against seal restoring force over the stroke
                                         (:func:`contributions_over_stroke` gives the numbers)
-:func:`plot_program`                    a planned program's displacement and the rivals' predicted
-                                        forces on it
+:func:`plot_program`                    a planned program's displacement and where the rivals'
+                                        predicted forces on it part
 :func:`plot_corner`                     corner plot of posterior samples (takes a *Figure*)
 :func:`plot_trace`, :func:`plot_autocorr`  MCMC diagnostics of one parameter's chain
 ======================================  ===========================================================

@@ -1,5 +1,5 @@
-"""A planned program (:mod:`fitstiff.planning`): the displacement against time, with the rival
-models' predicted forces on it."""
+"""A planned program (:mod:`fitstiff.planning`): the displacement against time, and where the
+rival models' predicted forces on it part."""
 
 from __future__ import annotations
 
@@ -11,25 +11,26 @@ from numpy.typing import ArrayLike
 
 __all__ = ["plot_program"]
 
-_RIVAL_COLORS = ("tab:red", "tab:blue", "tab:green", "tab:purple")
-
 
 def plot_program(ax: Axes, time_s: ArrayLike, displacement_mm: ArrayLike, *,
                  forces_N: Mapping[str, ArrayLike] | None = None,
-                 force_ax: Axes | None = None) -> Axes:
-    """The program's displacement (mm, black) against time on ``ax`` and, on ``force_ax``
-    (e.g. ``ax.twinx()`` or an axes below), each rival's predicted force (N) on it, one
-    colour per rival; where the rivals' forces part is what the program is for."""
+                 force_ax: Axes | None = None, noise_N: float | None = None) -> Axes:
+    """The program's displacement (mm, black) against time on ``ax``; on ``force_ax`` the
+    difference between the two rivals' predicted forces on it (N, the first named minus the
+    second; the rivals' forces are alike to the eye, their difference is what the program is
+    for), with the logs' noise floor ``noise_N`` as a grey band."""
     t = np.asarray(time_s, dtype=float)
-    ax.plot(t, np.asarray(displacement_mm, dtype=float), color="black", lw=1.0,
-            label="displacement")
+    ax.plot(t, np.asarray(displacement_mm, dtype=float), color="black", lw=1.0)
     ax.set_xlabel("time (s)")
     ax.set_ylabel("displacement (mm)")
-    if forces_N and force_ax is not None:
-        for (name, force), color in zip(forces_N.items(), _RIVAL_COLORS):
-            force_ax.plot(t, np.asarray(force, dtype=float), color=color, lw=1.0,
-                          label=name.replace("_", " "))
-        force_ax.set_ylabel("predicted force (N)")
+    if forces_N and force_ax is not None and len(forces_N) >= 2:
+        (a, fa), (b, fb) = list(forces_N.items())[:2]
+        if noise_N:
+            force_ax.axhspan(-noise_N, noise_N, color="0.85", label="noise floor")
+        force_ax.plot(t, np.asarray(fa, dtype=float) - np.asarray(fb, dtype=float),
+                      color="tab:red", lw=1.0,
+                      label=f"{a.replace('_', ' ')} - {b.replace('_', ' ')}")
+        force_ax.set_ylabel("predicted force difference (N)")
         force_ax.set_xlabel("time (s)")
         force_ax.legend(loc="upper right", fontsize=8)
     return ax

@@ -242,14 +242,16 @@ def _plan_section(path) -> Section | None:
         fig = Figure(figsize=(12, 3.2 * len(drawn)), layout="constrained")
         axes = fig.subplots(len(drawn), 2, squeeze=False)
         for (motion, forces), (t, x, predicted), p in zip(axes, drawn, plan.programs):
-            plotting.plot_program(motion, t, x, forces_N=predicted, force_ax=forces)
+            plotting.plot_program(motion, t, x, forces_N=predicted, force_ax=forces,
+                                  noise_N=plan.noise.sigma_N)
             motion.set_title(f"{p.file}: {p.program.get('family', '')} at "
                              f"{p.supply_bar:.3g} bar", fontsize=9)
             forces.set_title(" vs ".join(p.separates).replace("_", " "), fontsize=9)
         figures = (ReportFigure(
             "next_experiment", "The planned programs: displacement against time (left) and "
-            "the rival models' predicted force on it (right; for one effect against its "
-            "absence, the effect at the size the program detects).", fig),)
+            "the difference of the rival models' predicted forces on it (right; for one "
+            "effect against its absence, the effect at the size the program detects), against "
+            "the logs' noise floor (grey).", fig),)
     return Section("Next experiment", html=html, figures=figures)
 
 
