@@ -193,7 +193,7 @@ def test_plot_confusion_draws_on_the_given_axes():
 def test_dataset_ids_interleave_families_and_are_reproducible():
     ids = wh.dataset_ids(seeds=2, nulls=4, pair_seeds=1)
     n_ool = len(datasets.OUT_OF_LIBRARY)
-    assert len(ids) == len(set(ids)) == 13 * 2 + 4 + n_ool * 2 + 8 + 2 * 2
+    assert len(ids) == len(set(ids)) == 13 * 2 + 4 + n_ool * 2 + 8 + len(datasets.MISSING) * 2
     assert len(datasets.OUT_OF_LIBRARY) == 7 and set(datasets.OOL_VARIABLE) == set(
         datasets.OUT_OF_LIBRARY)
     assert {i.split("/")[0] for i in ids[: len(ids) // 2 + 8]} == set(wh.FAMILIES)
@@ -288,3 +288,46 @@ def test_each_new_out_of_library_kind_changes_the_force_where_it_should(kind):
     if kind == "friction_drift":            # it grows with time
         early, late = diff[: diff.size // 10], diff[-diff.size // 10:]
         assert np.abs(early).mean() < np.abs(late).mean()
+
+
+def test_a_planned_program_is_played_on_the_datasets_rig():
+    """The closed loop's rig (issue 33): a program's setpoints ``time_s,displacement_mm`` run
+    through the independent simulator with the dataset's truth, at the plan's supply and start
+    position; the motion follows the setpoints up to the rounded corners and the noise."""
+    _, truth = datasets.make_dataset("missing/inertia/0", short=True)
+    assert truth["excitation"]["sweeps"] is False and "inertia" in truth["effects"]
+    t = np.arange(0, 4.0, 1 / 200.0)
+    x = 0.5e-3 * np.sin(2 * np.pi * 1.0 * t)
+    log = datasets.simulate_program(truth, t, x, supply_bar=4.2, start_position_mm=300.0,
+                                    name="planned_0")
+    assert len(log) == t.size and np.allclose(log.time, t)
+    assert log.rig.supply_pressure == pytest.approx(4.2e5)
+    assert log.rig.start_position == pytest.approx(0.3)
+    assert np.max(np.abs(log.displacement - x)) < 20e-6           # rounding + encoder noise
+    again = datasets.simulate_program(truth, t, x, supply_bar=4.2, start_position_mm=300.0,
+                                      name="planned_0")
+    assert np.array_equal(again.force, log.force)                 # seeded by dataset and name
+
+
+def test_the_closed_loop_table_counts_named_exactly_per_stage():
+    from fitstiff._testing.plan_loop import score_loop
+
+    def record(i, family, withheld, before, naive, planned):
+        return {"id": f"{family}/{'+'.join(withheld) or 'x'}/{i}", "family": family,
+                "withheld": withheld, "reason": "untestable",
+                "before": {"exact": before}, "after_naive": {"exact": naive},
+                "after_planned": {"exact": planned}, "plan_s": 10.0 + i}
+
+    records = [record(0, "missing", ["dwell_stiction"], False, False, True),
+               record(1, "missing", ["dwell_stiction"], False, False, False),
+               record(2, "missing", ["inertia"], False, True, True),
+               record(3, "null", [], True, True, True),
+               {"id": "single/viscous/0", "family": "single", "withheld": ["viscous"],
+                "reason": None, "before": {"exact": True}}]
+    table = score_loop(records)
+    assert table["rows"]["missing/dwell_stiction"]["after_planned"]["k"] == 1
+    assert table["rows"]["missing/dwell_stiction"]["after_planned"]["n"] == 2
+    assert table["effects"]["after_naive"]["k"] == 1
+    assert table["effects"]["after_planned"]["k"] == 2
+    assert table["nulls"]["after_planned"]["k"] == 1
+    assert table["no_plan_needed"] == 1 and table["plan_s_max"] == 13.0

@@ -52,6 +52,8 @@ def add_limit_arguments(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--pressures", type=float, nargs="+", metavar="BAR", default=None,
                        help="supply pressures (gauge) a program may use (default: the logged "
                             "ones)")
+    group.add_argument("--rate", type=float, metavar="HZ", default=None,
+                       help="sample rate of the programs (default: the logs' median)")
     group.add_argument("--max-programs", type=int, default=None, metavar="N",
                        help="at most this many programs, one per confusion (default 4)")
 
@@ -62,7 +64,8 @@ def limits_from_args(args, logs):
     return Limits.from_logs(
         logs, max_duration_s=args.max_duration, max_speed_mm_s=args.max_speed,
         stroke_range_mm=tuple(args.stroke_range) if args.stroke_range else None,
-        pressures_bar=tuple(args.pressures) if args.pressures else None)
+        pressures_bar=tuple(args.pressures) if args.pressures else None,
+        rate_hz=args.rate)
 
 
 def write_plan(out: OutputDir, result, *, prefix: str = "") -> None:

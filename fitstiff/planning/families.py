@@ -36,6 +36,10 @@ _HOLDS_MM = (1.0, 5.0, 20.0)
 _PAUSES_S = (0.0, 1.0, 4.0)
 _SPEED_SHARES = (0.05, 0.25, 1.0)
 _MAX_SWEEP_HZ = 20.0
+#: the command-line flag of each limit (fitstiff plan)
+_FLAGS = {"max_duration_s": "--max-duration", "max_speed_mm_s": "--max-speed",
+          "stroke_range_mm": "--stroke-range", "pressures_bar": "--pressures",
+          "rate_hz": "--rate"}
 _SPEED_WINDOW_S = 0.05
 #: samples a leg lasts at least: legs last whole sample periods (:mod:`~fitstiff.physics.programs`),
 #: so a shorter one runs faster than its rate by up to half a period in its length
@@ -81,16 +85,16 @@ class Limits:
     @classmethod
     def from_logs(cls, logs: Sequence[Log], **given) -> Limits:
         """Limits from what the logs and their sidecars show, ``given`` (not None) on top:
-        the longest log's duration, the fastest speed logged (99th percentile over 50 ms), the stroke
-        from 5 to 95 % (the logged positions where no stroke is known), the logged supply
-        pressures and the logs' median sample rate."""
+        the longest log's duration, the fastest speed logged (99th percentile over 50 ms),
+        the stroke from 5 to 95 % (the logged positions where no stroke is known), the logged
+        supply pressures and the logs' median sample rate (logs with a time column)."""
         durations, speeds, rates, lows, highs, pressures = [], [], [], [], [], []
         for log in logs:
-            t = log.time if log.time is not None else np.arange(len(log), dtype=float)
             x = np.asarray(log.displacement, float)
-            durations.append(float(t[-1] - t[0]))
-            dt = np.diff(t)
-            if dt.size and np.all(dt > 0):
+            t = log.time
+            if t is not None and t.size > 1 and np.all(np.diff(t) > 0):
+                dt = np.diff(t)
+                durations.append(float(t[-1] - t[0]))
                 rates.append(1.0 / float(np.median(dt)))
                 # over 50 ms: a sample-to-sample difference reads the encoder's noise
                 w = max(1, min(x.size - 1, int(round(_SPEED_WINDOW_S * rates[-1]))))
@@ -115,8 +119,9 @@ class Limits:
         missing = [k for k, v in found.items() if v is None]
         if missing:
             raise InputError(None, "plan limits", f"the logs do not show {', '.join(missing)}",
-                             "give " + ", ".join(f"--{m.replace('_', '-')}" for m in missing)
-                             + " (or sidecars with stroke_mm, start_position_mm, supply_bar)")
+                             "give " + ", ".join(_FLAGS[m] for m in missing)
+                             + " (or logs with a time column and sidecars with stroke_mm, "
+                               "start_position_mm, supply_bar)")
         return cls(**found)
 
     def samples(self) -> int:

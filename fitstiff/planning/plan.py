@@ -173,7 +173,8 @@ def noise_of(diagnosis: Diagnosis, logs: Sequence[Log]) -> Noise:
 
 
 class _Scorer:
-    """Scores choices for one confusion (drives cached per choice)."""
+    """Scores choices (programs) for one confusion: its rivals fitted, the drive of a choice
+    built as the fit builds a log's."""
 
     def __init__(self, confusion: Confusion, rivals: Rivals, logs: Sequence[Log],
                  limits: Limits, noise: Noise):
@@ -224,7 +225,8 @@ class _Scorer:
         lam = min(lam_ab, lam_ba)
         a, b = self.confusion.separates
         return {"objective": lam, "z": math.sqrt(lam), "noncentrality": lam,
-                "noncentrality_if": {a: lam_ba, b: lam_ab},
+                # if a is true, b refits (and leaves lam_ab of the difference), and back
+                "noncentrality_if": {a: lam_ab, b: lam_ba},
                 "force_difference_rms_N": float(np.sqrt(np.mean(
                     (r[:len(t)] * self.noise.scale(self.noise.sigma_N)) ** 2)))}
 

@@ -62,7 +62,6 @@ def confusions(diagnosis: Diagnosis, *, separate: Sequence[str] | None = None
                ) -> list[Confusion]:
     """The diagnosis' confusions, in the order of :data:`KINDS` (``separate``: the user's
     pair or single effect instead)."""
-    known = {c.effect for c in diagnosis.candidates} | set(diagnosis.accepted)
     if separate:
         names = list(dict.fromkeys(separate))
         unknown = [n for n in names if n not in TERMS]
@@ -110,8 +109,7 @@ def confusions(diagnosis: Diagnosis, *, separate: Sequence[str] | None = None
                 out.append(Confusion("undecided", (c.effect, ABSENT),
                                      f"{c.effect} is significant on the final model "
                                      f"(p = {c.p_text}) but was not accepted: {c.why}"))
-    return [c for c in out if all(e == ABSENT or e in known or e in TERMS
-                                  for e in c.separates)]
+    return out
 
 
 class Rivals:
