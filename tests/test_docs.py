@@ -29,6 +29,8 @@ DOCUMENTED = {
                   "fitstiff.inference.problem.Problem",
                   "fitstiff.inference.posterior.sample_posterior"],
     "diagnosis": ["fitstiff.diagnosis.diagnose.diagnose", "fitstiff.diagnosis.result.Diagnosis"],
+    "planning": ["fitstiff.planning.plan.plan", "fitstiff.planning.plan.Plan",
+                 "fitstiff.planning.families.Limits"],
     "fleet": ["fitstiff.fleet.engine.fit_fleet"],
     "present": ["fitstiff.present.report.write_report", "fitstiff.present.plotting.plot_loop"],
     "signal": ["fitstiff.signal.noise.noise_floor"],

@@ -272,3 +272,13 @@ def test_diagnose_plans_the_untestable_and_plan_and_report_follow(tmp_path):
         proc = cli(*argv)
         lines = proc.stderr.strip().splitlines()
         assert proc.returncode == 2 and len(lines) == 1 and fragment in lines[0], proc.stderr
+
+
+def test_a_rival_fitted_once_answers_to_the_name_it_is_asked_for(pause_free):
+    from fitstiff.planning.rivals import Confusion, Rivals
+
+    rivals = Rivals(pause_free, "chamber+dahl+viscous")
+    a1, _ = rivals.pair(Confusion("rival", ("viscous", "stribeck"), ""))
+    again = rivals.fitted("the final model", rivals.spec(["viscous"], drop=["stribeck"]))
+    assert a1.name == "viscous" and again.name == "the final model"
+    assert again.model is a1.model                     # one fit, two names

@@ -134,6 +134,8 @@ class Rivals:
         return "+".join(spec_token(t) for t in terms + [e for e in effects if e not in terms])
 
     def fitted(self, name: str, spec: str, *, fix: Mapping[str, float | None] = {}) -> Rival:
+        """The rival ``name``: ``spec`` fitted to the logs (one fit per spec and fixed
+        values, whatever the name it is asked for under)."""
         key = (spec, tuple(sorted(fix.items())))
         if key not in self._fits:
             result = fit(self.logs, spec, fix=dict(fix), seed=self.seed, **self.problem_kw)
@@ -143,7 +145,7 @@ class Rivals:
                                  "check the logs fit the diagnosis' final model, or name "
                                  "the rivals with --separate")
             self._fits[key] = Rival.from_fit(name, result)
-        return self._fits[key]
+        return dataclasses.replace(self._fits[key], name=name)
 
     def pair(self, confusion: Confusion) -> tuple[Rival, Rival]:
         """Rivals ``a`` and ``b`` of a pair: the final model with each in place of both."""
