@@ -68,21 +68,20 @@ def limits_from_args(args, logs):
         rate_hz=args.rate)
 
 
-def write_plan(out: OutputDir, result, *, prefix: str = "") -> None:
-    """``plan.json``, the program CSVs and ``predicted.npz`` into ``out`` (under ``prefix``)."""
+def write_plan(out: OutputDir, result) -> None:
+    """``plan.json``, the program CSVs and ``predicted.npz`` into ``out``."""
     from fitstiff.planning import PLAN
 
-    out.write_json(prefix + PLAN, result.to_dict())
+    out.write_json(PLAN, result.to_dict())
     for name, data in result.files().items():
-        out.write_bytes(prefix + name, data)
+        out.write_bytes(name, data)
 
 
-def planned_names(max_programs: int, *, prefix: str = "") -> list[str]:
+def planned_names(max_programs: int) -> list[str]:
     from fitstiff.planning import PLAN
     from fitstiff.planning.plan import PREDICTED
 
-    return [prefix + PLAN, prefix + PREDICTED] + [f"{prefix}program_{k}.csv"
-                                                  for k in range(1, max_programs + 1)]
+    return [PLAN, PREDICTED] + [f"program_{k}.csv" for k in range(1, max_programs + 1)]
 
 
 def run(args) -> int:
