@@ -25,14 +25,14 @@ RATE_HZ = 10000.0
 
 
 def write_log(folder: Path, seconds: float) -> Path:
+    from fitstiff.data import paper_rig
     from fitstiff.io.log import Rig
     from fitstiff.physics.programs import TriangleCycles
     from fitstiff.physics.simulate import Noise, simulate, write_log as write
 
     amplitudes = (0.05, 0.1, 0.2, 0.5, 1.0)
     cycles = max(1, int(round(seconds / (4 * sum(amplitudes)))))
-    rig = Rig.from_mapping({"bore_mm": 32, "rod_mm": 0, "stroke_mm": 700,
-                            "start_position_mm": 350, "supply_bar": 6})
+    rig = Rig.from_mapping(paper_rig())
     program = TriangleCycles(amplitudes_mm=amplitudes, cycles=cycles, rate_mm_s=1.0)
     sim = simulate("chamber+dahl", program, rig=rig, params={"sigma0": 40, "Fc": 18},
                    noise=Noise(force_N=0.2, displacement_um=1.0, pressure_mbar=2.0), seed=1,

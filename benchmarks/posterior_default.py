@@ -36,6 +36,7 @@ CHECK_EVERY = 500               # fitstiff posterior's default
 
 
 def write_logs(folder: Path, *, scale: float = 1.0) -> list[Path]:
+    from fitstiff.data import paper_rig
     from fitstiff.io.log import Rig
     from fitstiff.physics.programs import TriangleCycles
     from fitstiff.physics.simulate import Noise, simulate, write_log
@@ -44,8 +45,7 @@ def write_logs(folder: Path, *, scale: float = 1.0) -> list[Path]:
     paths = []
     for bar, samples in LOGS:
         rate = travel_mm * RATE_HZ / (samples * scale)  # mm/s: one pass through the cycles
-        rig = Rig.from_mapping({"bore_mm": 32, "rod_mm": 0, "stroke_mm": 700,
-                                "start_position_mm": 350, "supply_bar": bar})
+        rig = Rig.from_mapping(paper_rig(supply_bar=bar))
         sim = simulate("chamber+dahl", TriangleCycles(amplitudes_mm=AMPLITUDES_MM,
                                                       rate_mm_s=rate),
                        rig=rig, params={"sigma0": 40, "Fc": 18},

@@ -30,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
+from fitstiff.data import paper_rig
 from fitstiff.inference.fitting import fit
 from fitstiff.io.log import Rig
 from fitstiff.physics.programs import TriangleCycles
@@ -47,8 +48,7 @@ Z90 = 1.6448536269514722
 
 def one_fit(rate_hz: float, seed: int) -> dict[str, object]:
     """Simulate and fit one log; the z-scores of the slope and the breakaway."""
-    rig = Rig.from_mapping({"bore_mm": 32, "rod_mm": 0, "stroke_mm": 700,
-                            "start_position_mm": 350, "supply_bar": 6})
+    rig = Rig.from_mapping(paper_rig())
     program = TriangleCycles(amplitudes_mm=AMPLITUDES_MM, rate_mm_s=RATE_MM_S)
     sim = simulate("chamber+dahl", program, rig=rig, params=TRUTH, noise=NOISE, seed=seed,
                    rate_hz=rate_hz, name=f"r{int(rate_hz)}_s{seed}")

@@ -89,10 +89,10 @@ def polyline(points, *, rate=1e-3, fs=1000.0):
 
 @pytest.fixture
 def paper_rig():
+    from fitstiff.data import paper_rig
     from fitstiff.io.log import Rig
 
-    return Rig.from_mapping({"bore_mm": 32, "rod_mm": 0, "stroke_mm": 700,
-                             "start_position_mm": 350, "supply_bar": 6})
+    return Rig.from_mapping(paper_rig())
 
 
 CHROMIUM = shutil.which("chromium")

@@ -23,6 +23,7 @@ import matplotlib.style
 import numpy as np
 from matplotlib.figure import Figure
 
+from fitstiff.data import paper_rig
 from fitstiff.inference.fitting import FitResult, fit
 from fitstiff.io.log import Log, Rig
 from fitstiff.physics.programs import TriangleCycles
@@ -54,8 +55,7 @@ def example_fit() -> Example:
     simulated as ``chamber+dahl+dwell_stiction`` and fitted as ``chamber+dahl``: the residuals
     show the unmodelled stiction peak after every pause (region ``dwell``).
     """
-    rig = Rig.from_mapping({"bore_mm": 32, "rod_mm": 0, "stroke_mm": 700,
-                            "start_position_mm": 350, "supply_bar": 6})
+    rig = Rig.from_mapping(paper_rig())
     program = TriangleCycles(amplitudes_mm=(0.2, 0.5, 1.0), rate_mm_s=2.0, pause_s=(0.5,),
                              pause_at="passes")
     sim = simulate("chamber+dahl+dwell_stiction", program, rig=rig, seed=11, rate_hz=100.0,

@@ -12,6 +12,7 @@ from conftest import REALDATA, run_benchmark
 
 from fitstiff._testing.recovery import dataset
 from fitstiff.cli import main
+from fitstiff.data import paper_rig
 from fitstiff.inference.comparison import compare
 from fitstiff.inference.fitting import fit
 from fitstiff.io.log import Rig
@@ -34,8 +35,7 @@ def test_recovers_seal_and_chamber_from_four_logs(friction, seed):
 
 
 def _single(noise_um: float, seed: int):
-    rig = Rig.from_mapping({"bore_mm": 32, "stroke_mm": 700, "start_position_mm": 350,
-                            "supply_bar": 6})
+    rig = Rig.from_mapping(paper_rig())
     prog = TriangleCycles(rate_mm_s=1.0, amplitudes_mm=(0.1, 0.3, 0.6, 1.0))
     return simulate("dahl", prog, rig=rig, params={"sigma0": 40, "Fc": 18}, seed=seed,
                     noise=Noise(force_N=0.2, displacement_um=noise_um), rate_hz=1000).log
@@ -111,8 +111,7 @@ def test_multistart_reports_agreement():
 
 
 def test_compare_ranks_the_true_model_first():
-    rig = Rig.from_mapping({"bore_mm": 32, "stroke_mm": 700, "start_position_mm": 350,
-                            "supply_bar": 6})
+    rig = Rig.from_mapping(paper_rig())
     logs = [simulate("dahl+viscous", TriangleCycles(rate_mm_s=r, amplitudes_mm=(0.5, 1.0)),
                      rig=rig, params={"c": 400.0}, seed=i, rate_hz=200 * r,
                      noise=Noise(force_N=0.1, displacement_um=0.0)).log
@@ -181,11 +180,10 @@ def test_closing_pressure_can_be_a_per_log_nuisance():
     the logged chamber pressures (and the force), per log."""
     logs = []
     for bar in (2.0, 5.0):
-        rig = Rig.from_mapping({"bore_mm": 32, "stroke_mm": 700, "start_position_mm": 100,
-                                "supply_bar": bar})
+        rig = Rig.from_mapping(paper_rig(start_position_mm=100, supply_bar=bar))
         sim = simulate("chamber+dahl", TriangleCycles(rate_mm_s=1.0, amplitudes_mm=(0.2, 1.0)),
                        rig=rig, seed=int(bar), name=f"p{bar:g}", rate_hz=200)
-        unknown = Rig.from_mapping({"bore_mm": 32, "stroke_mm": 700, "start_position_mm": 100})
+        unknown = Rig.from_mapping(paper_rig(start_position_mm=100, supply_bar=None))
         logs.append(sim.log.replace(rig=unknown))
     result = fit(logs, "chamber+dahl", free=["closing_pressure"])
     assert result.converged
@@ -293,8 +291,7 @@ def test_capped_residual_autocorrelation_is_called_a_misfit_not_a_factor():
     """Issue 17 item 7: a fit that misses a smooth force (here the chamber) has residuals
     whose lag-1 correlation reaches the cap; the warning says the standard errors are a lower
     bound of a misfit, not an AR(1) factor to trust."""
-    rig = Rig.from_mapping({"bore_mm": 32, "stroke_mm": 700, "start_position_mm": 100,
-                            "supply_bar": 6})
+    rig = Rig.from_mapping(paper_rig(start_position_mm=100))
     log = simulate("chamber+dahl", TriangleCycles(rate_mm_s=1.0, amplitudes_mm=(0.5, 2.0)),
                    rig=rig, seed=3, rate_hz=500, noise=Noise(force_N=0.01,
                                                              displacement_um=0.0)).log
@@ -310,8 +307,7 @@ def test_fit_json_says_what_pressure_friction_is_relative_to():
     (0.1 bar grid); fit.json records it under settings."""
     logs = []
     for bar in (2.0, 6.0):
-        rig = Rig.from_mapping({"bore_mm": 32, "stroke_mm": 700, "start_position_mm": 350,
-                                "supply_bar": bar})
+        rig = Rig.from_mapping(paper_rig(supply_bar=bar))
         logs.append(simulate("chamber+dahl", TriangleCycles(rate_mm_s=2.0,
                                                             amplitudes_mm=(0.2, 1.0)),
                              rig=rig, seed=int(bar), rate_hz=200, name=f"p{bar:g}").log)
@@ -328,8 +324,7 @@ def test_values_at_a_bound_or_beyond_the_data_are_flagged():
     an absent effect, not a warning."""
     from fitstiff.inference.fitting.summary import _implausible
 
-    rig = Rig.from_mapping({"bore_mm": 32, "stroke_mm": 700, "start_position_mm": 100,
-                            "supply_bar": 6})
+    rig = Rig.from_mapping(paper_rig(start_position_mm=100))
     log = simulate("chamber+dahl", TriangleCycles(rate_mm_s=2.0, amplitudes_mm=(0.5, 2.0)),
                    rig=rig, params={"n": 1.0}, seed=3, rate_hz=200,
                    noise=Noise(force_N=0.05)).log
@@ -465,8 +460,7 @@ def test_held_out_near_ties_go_to_the_identifiable_model_then_bic():
 
 def test_the_table_states_the_reference_pressure_of_pressure_friction():
     """Issue 31: Fc with pressure_friction is the level at p_ref, printed nowhere before."""
-    rig = Rig.from_mapping({"bore_mm": 32, "stroke_mm": 700, "start_position_mm": 350,
-                            "supply_bar": 4})
+    rig = Rig.from_mapping(paper_rig(supply_bar=4))
     logs = [simulate("dahl", TriangleCycles(rate_mm_s=5.0, amplitudes_mm=(0.5, 1.0)),
                      rig=dataclasses.replace(rig, supply_pressure=bar * 1e5), seed=i,
                      rate_hz=500, noise=Noise(force_N=0.1, displacement_um=0.0)).log

@@ -34,6 +34,7 @@ import pytest
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
+from fitstiff.data import PAPER_RIG
 from fitstiff.errors import InputError
 from fitstiff.io.loading import MIN_SAMPLES, load_log
 from fitstiff.io.log import RIG_KEYS
@@ -59,8 +60,8 @@ def _rows() -> list[list[str]]:
 
 
 BASE_ROWS = _rows()
-BASE_SIDECAR = {"bore_mm": 32, "rod_mm": 0, "stroke_mm": 700, "start_position_mm": 350,
-                "supply_bar": 6, "ambient_bar": 1.01325}
+BASE_SIDECAR = {k: v for k, v in PAPER_RIG.items() if k in (
+    "bore_mm", "rod_mm", "stroke_mm", "start_position_mm", "supply_bar", "ambient_bar")}
 RIG_NAMES = [k.key for k in RIG_KEYS]
 
 # -- strategies ----------------------------------------------------------------------------

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from fitstiff.cli import main
-from fitstiff.data import fig4_logs
+from fitstiff.data import fig4_logs, paper_rig
 from fitstiff.inference.fitting import fit
 from fitstiff.inference.identifiability import assess_identifiability, reversal_travel
 from fitstiff.io.loading import load_logs
@@ -34,8 +34,7 @@ def ramp_run(tmp_path_factory):
     """``fitstiff fit`` on one 2 mm ramp, and the report of it: (fit.json, stdout, page)."""
     from fitstiff.io.log import Rig
 
-    rig = Rig.from_mapping({"bore_mm": 32, "rod_mm": 0, "stroke_mm": 700,
-                            "start_position_mm": 350, "supply_bar": 6})
+    rig = Rig.from_mapping(paper_rig())
     root = tmp_path_factory.mktemp("ramp")
     sim = _simulate(Ramp(distance_mm=2.0, rate_mm_s=1.0), rig)
     log = root / "ramp.csv"

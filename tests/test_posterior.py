@@ -16,11 +16,12 @@ import pytest
 from conftest import REPO, polyline, run_benchmark
 
 from fitstiff.cli import main
+from fitstiff.data import paper_rig
 from fitstiff.errors import InputError
-from fitstiff.inference.posterior.chain import ChainBackend, ChainStore
 from fitstiff.inference.likelihood import (AR1, Gaussian, Layout, LinearNuisances, StudentT,
                                            TurningPoints)
 from fitstiff.inference.posterior import sample_posterior
+from fitstiff.inference.posterior.chain import ChainBackend, ChainStore
 from fitstiff.inference.priors import Priors
 from fitstiff.inference.problem import Problem, ResidualSeries
 from fitstiff.io.loading import load_log
@@ -524,8 +525,7 @@ def test_default_posterior_benchmark_runs_small(tmp_path):
 def test_speed_benchmark_reference_is_the_same_log_posterior():
     """benchmarks/posterior_speed.py compares against a NumPy log-posterior; it must be the
     same function (up to one constant), or the speed-up means nothing."""
-    from fitstiff._testing.speed import reference_log_posterior
-    from fitstiff._testing.speed import make_log
+    from fitstiff._testing.speed import make_log, reference_log_posterior
     from fitstiff.inference.fitting import fit_problem
     from fitstiff.inference.posterior import log_posterior
 
@@ -564,8 +564,7 @@ def test_posterior_that_contradicts_least_squares_says_the_model_is_wrong():
                                            "breakaway_N": (4.52, 0.05)})
     assert _disagreements(agree, derived, "ar1") == []
 
-    rig = Rig.from_mapping({"bore_mm": 32, "stroke_mm": 700, "start_position_mm": 350,
-                            "supply_bar": 6})
+    rig = Rig.from_mapping(paper_rig())
     log = simulate("dahl", TriangleCycles(rate_mm_s=2.0, amplitudes_mm=(0.2, 0.5, 1.0)),
                    rig=rig, params={"sigma0": 40, "Fc": 18}, seed=2, rate_hz=200,
                    noise=Noise(force_N=0.05, ar1=0.3)).log

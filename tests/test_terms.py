@@ -13,6 +13,7 @@ from conftest import polyline, triangle
 from scipy.integrate import solve_ivp
 
 from fitstiff._jax import jax, jnp
+from fitstiff.data import paper_rig
 from fitstiff.errors import InputError
 from fitstiff.physics import gas_spring
 from fitstiff.physics.drive import make_drive
@@ -166,7 +167,7 @@ def test_chamber_measured_and_vented_modes(paper_rig):
 
 
 @pytest.mark.parametrize("spec, rig, drive_kw", [
-    ("chamber", {"bore_mm": 32, "stroke_mm": 700, "start_position_mm": 350, "supply_bar": 6}, {}),
+    ("chamber", paper_rig(), {}),
     ("chamber", {"bore_mm": 40, "rod_mm": 16, "stroke_mm": 200, "start_position_mm": 30,
                  "supply_bar": 4, "dead_length_a_mm": 12.0}, {}),
     ("chamber", {"bore_mm": 25, "stroke_mm": 100, "start_position_mm": 50, "supply_bar": 3},
@@ -526,13 +527,13 @@ def test_asymmetry_gives_direction_dependent_level():
 
 
 def test_pressure_friction_rises_with_pressure():
+    from fitstiff.data import paper_rig
     from fitstiff.io.log import Rig
 
     t, x = polyline([0.0, 10e-3], fs=200)
     levels = {}
     for bar in (2.0, 6.0):
-        rig = Rig.from_mapping({"bore_mm": 32, "stroke_mm": 700, "start_position_mm": 350,
-                                "supply_bar": bar})
+        rig = Rig.from_mapping(paper_rig(supply_bar=bar))
         drive = make_drive(displacement=x, time=t, rig=rig, needs_chamber=True)
         model = build_model("dahl+pressure_friction")
         model = Parameterization(model).with_values(model, {"beta": 0.05e-5})
@@ -738,10 +739,10 @@ def test_a_maxwell_slip_fit_of_six_elements_is_reported(tmp_path):
 
 
 def test_pressure_friction_reference_can_be_set_and_is_kept_in_the_spec():
+    from fitstiff.data import paper_rig
     from fitstiff.io.log import Rig
 
-    rig = Rig.from_mapping({"bore_mm": 32, "stroke_mm": 700, "start_position_mm": 350,
-                            "supply_bar": 6.0})
+    rig = Rig.from_mapping(paper_rig())
     t, x = polyline([0.0, 10e-3], rate=10e-3)      # far beyond the pre-sliding range
     drive = make_drive(displacement=x, time=t, rig=rig, needs_chamber=True)
     assert build_model("dahl+pressure_friction", drives=[drive]).settings()[

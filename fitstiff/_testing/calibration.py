@@ -15,10 +15,11 @@ import time
 
 import numpy as np
 
-from fitstiff.io.log import Rig
-from fitstiff.physics.programs import TriangleCycles
+from fitstiff.data import paper_rig
 from fitstiff.inference.fitting import fit
 from fitstiff.inference.posterior import sample_posterior
+from fitstiff.io.log import Rig
+from fitstiff.physics.programs import TriangleCycles
 from fitstiff.physics.simulate import Noise, simulate
 from fitstiff.present.reopen import Z90
 
@@ -49,8 +50,7 @@ def dataset(seed: int):
                   ar1=truth["ar1"])
     logs = []
     for bar, rate in LOGS:
-        rig = Rig.from_mapping({"bore_mm": 32, "stroke_mm": 700, "start_position_mm": 350,
-                                "supply_bar": bar})
+        rig = Rig.from_mapping(paper_rig(supply_bar=bar))
         sim = simulate("chamber+dahl", TriangleCycles(rate_mm_s=rate, amplitudes_mm=AMPLITUDES_MM),
                        rig=rig, params={k: truth[k] for k in ("sigma0", "Fc", "n")},
                        noise=noise, seed=seed * 10 + int(bar), name=f"p{bar:g}",

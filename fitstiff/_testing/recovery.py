@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from fitstiff.data import paper_rig
 from fitstiff.io.log import Rig
 from fitstiff.physics.programs import TriangleCycles
 from fitstiff.physics.simulate import Noise, simulate
@@ -44,8 +45,7 @@ def dataset(friction: str, seed: int):
     truth = truth_for(friction, rng)
     logs = []
     for bar, rate in LOGS:
-        rig = Rig.from_mapping({"bore_mm": 32, "stroke_mm": 700, "start_position_mm": 350,
-                                "supply_bar": bar})
+        rig = Rig.from_mapping(paper_rig(supply_bar=bar))
         program = TriangleCycles(rate_mm_s=rate, amplitudes_mm=AMPLITUDES_MM)
         sim = simulate(f"chamber+{friction}", program, rig=rig, params=truth,
                        noise=Noise(force_N=0.2, displacement_um=1.0, pressure_mbar=2.0),

@@ -9,13 +9,13 @@ import math
 
 import numpy as np
 
+from fitstiff.data import paper_rig
 from fitstiff.inference.problem import Problem
 from fitstiff.io.log import Log, Rig
 from fitstiff.physics.programs import TriangleCycles
 from fitstiff.physics.simulate import Noise, simulate
 
-RIG = Rig.from_mapping({"bore_mm": 32, "stroke_mm": 700, "start_position_mm": 350,
-                        "supply_bar": 6})
+RIG = Rig.from_mapping(paper_rig())
 
 
 def make_log() -> Log:

@@ -17,6 +17,7 @@ import argparse
 import re
 
 from fitstiff.cli._common import add_out_argument, model_spec
+from fitstiff.data import PAPER_RIG
 from fitstiff.errors import InputError
 from fitstiff.io.log import RIG_KEYS, Rig
 from fitstiff.io.output import OutputDir
@@ -39,10 +40,6 @@ PROGRAMS = {
 }
 _DEFAULT_AMPLITUDES = {"triangle": (0.05, 0.1, 0.2, 0.5, 1.0), "nested": (1.0,), "sine": (0.5,)}
 
-#: the paper's cylinder (Festo OSP-P 32, rodless, 700 mm stroke), closed at mid-stroke, 6 bar
-PAPER_RIG = {"bore_mm": 32.0, "rod_mm": 0.0, "stroke_mm": 700.0, "start_position_mm": 350.0,
-             "supply_bar": 6.0, "dead_length_a_mm": 0.0, "dead_length_b_mm": 0.0,
-             "ambient_bar": 1.01325, "load_kg": None}
 
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
 

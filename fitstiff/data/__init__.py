@@ -8,10 +8,29 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from importlib.resources import files
 from pathlib import Path
+from types import MappingProxyType
 
-__all__ = ["fig4_logs"]
+__all__ = ["fig4_logs", "PAPER_RIG", "paper_rig"]
+
+#: the paper's cylinder (Festo OSP-P 32, rodless, 700 mm stroke), closed at mid-stroke at
+#: 6 bar, as sidecar keys (read-only; :func:`paper_rig` gives a copy with changes)
+PAPER_RIG: Mapping[str, float | None] = MappingProxyType({
+    "bore_mm": 32.0, "rod_mm": 0.0, "stroke_mm": 700.0, "start_position_mm": 350.0,
+    "supply_bar": 6.0, "dead_length_a_mm": 0.0, "dead_length_b_mm": 0.0,
+    "ambient_bar": 1.01325, "load_kg": None})
+
+
+def paper_rig(**changes: float | None) -> dict[str, float | None]:
+    """The paper's rig (:data:`PAPER_RIG`) as sidecar keys, with ``changes`` (e.g.
+    ``supply_bar=4``; ``None`` leaves a key unknown), for ``Rig.from_mapping`` or a sidecar."""
+    unknown = set(changes) - set(PAPER_RIG)
+    if unknown:
+        raise KeyError(f"not a key of the paper rig: {', '.join(sorted(unknown))} (use one "
+                       f"of: {', '.join(PAPER_RIG)})")
+    return {**PAPER_RIG, **changes}
 
 
 def fig4_logs() -> list[Path]:
