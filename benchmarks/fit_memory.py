@@ -44,7 +44,7 @@ def write_log(folder: Path, seconds: float) -> Path:
 
 _CHILD = r"""
 import json, resource, sys, time
-from fitstiff._malloc import limit_arenas
+from fitstiff.malloc import limit_arenas
 limit_arenas()          # as the command line does, before JAX starts its threads
 
 def peak_mb():

@@ -15,7 +15,7 @@ jax.config.update("jax_enable_x64", True)
 
 import jax.numpy as jnp  # noqa: E402
 
-from fitstiff import _malloc  # noqa: E402
+from fitstiff import malloc  # noqa: E402
 
 __all__ = ["computed_apart", "jax", "jnp", "release_compiled"]
 
@@ -33,7 +33,7 @@ def release_compiled() -> None:
     """
     jax.clear_caches()
     gc.collect()
-    _malloc.trim()
+    malloc.trim()
 
 
 def computed_apart(x):

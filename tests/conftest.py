@@ -12,6 +12,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+# the tests compute in 64-bit floats on the CPU, as fitstiff does (it sets the same on import)
+os.environ.setdefault("JAX_PLATFORMS", "cpu")
+import jax  # noqa: E402
+
+jax.config.update("jax_enable_x64", True)
+
 REPO = Path(__file__).resolve().parents[1]
 #: the real O-ring logs (CC0; data/real/oring/SOURCE.md)
 REALDATA = REPO / "data" / "real" / "oring"
@@ -29,8 +35,6 @@ def pytest_configure(config):
     path = os.environ.get("FITSTIFF_CACHE_DIR",
                           os.path.join(os.path.expanduser("~"), ".cache", "fitstiff", "jax"))
     if path:
-        from fitstiff._jax import jax
-
         jax.config.update("jax_compilation_cache_dir", path)
         jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 
@@ -48,8 +52,6 @@ def pytest_runtest_teardown(item, nextitem):
         return
     if count > _MAX_MAPS:
         import gc
-
-        from fitstiff._jax import jax
 
         jax.clear_caches()
         gc.collect()

@@ -14,7 +14,7 @@ from fitstiff.inference.closed_series import MAX_TERMS, ClosedFormLikelihood, ta
 from fitstiff.inference.fitting import fit_problem
 from fitstiff.inference.likelihood import AR1, Gaussian, Layout, StudentT, TurningPoints
 from fitstiff.inference.posterior import LogPosterior
-from fitstiff.inference.posterior.density import _Coordinates, _integrated, _prepared
+from fitstiff.inference.posterior.density import Coordinates, integrated_entries, prepared_noise
 from fitstiff.inference.priors import Priors
 from fitstiff.inference.problem import Problem, ResidualSeries
 
@@ -47,9 +47,9 @@ def _pair(problem, noise, theta, *, integrate, walkers=8):
     """The log-posterior with the pressures in closed form and from the residuals."""
     layout = Layout.from_problem(problem)
     priors = Priors(problem, None)
-    coordinates = _Coordinates.of(problem, theta, _integrated(problem, noise, priors, integrate),
-                                  layout)
-    noise, _ = _prepared(problem, noise, theta, layout, linear=coordinates.linear)
+    integrated = integrated_entries(problem, noise, priors, integrate)
+    coordinates = Coordinates.of(problem, theta, integrated, layout)
+    noise, _ = prepared_noise(problem, noise, theta, layout, linear=coordinates.linear)
     closed = LogPosterior(problem, noise, priors, batch=walkers, coordinates=coordinates,
                           centre=theta)
     plain = LogPosterior(problem, noise, priors, batch=walkers, coordinates=coordinates)

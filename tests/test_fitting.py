@@ -322,7 +322,7 @@ def test_values_at_a_bound_or_beyond_the_data_are_flagged():
     the polytropic exponent at 1.0, where the data were made) says so; a breakaway force far
     above every measured force is called an extrapolation. An effect at its null (c = 0) is
     an absent effect, not a warning."""
-    from fitstiff.inference.fitting.summary import _implausible
+    from fitstiff.inference.fitting.summary import implausible
 
     rig = Rig.from_mapping(paper_rig(start_position_mm=100))
     log = simulate("chamber+dahl", TriangleCycles(rate_mm_s=2.0, amplitudes_mm=(0.5, 2.0)),
@@ -334,17 +334,17 @@ def test_values_at_a_bound_or_beyond_the_data_are_flagged():
     assert "c sits at" not in text
     values = np.asarray([result.value(n) for n in result.problem.par.names])
     largest = float(np.max(np.abs(log.force)))
-    said = _implausible(result.problem, values, {"breakaway_N": (20 * largest, 1.0)})
+    said = implausible(result.problem, values, {"breakaway_N": (20 * largest, 1.0)})
     assert any("model's extrapolation" in w for w in said)
     assert not any("extrapolation" in w for w in
-                   _implausible(result.problem, values, {"breakaway_N": (18.0, 0.1)}))
+                   implausible(result.problem, values, {"breakaway_N": (18.0, 0.1)}))
     # LuGre's static friction below its sliding friction (the real O-ring fit: 0.47 < 6.19 N)
     from fitstiff.inference.problem import Problem
 
     lugre = Problem([log], "chamber+lugre")
     for fs, flagged in ((9.0, True), (18.0, False)):
         values = np.asarray([{"Fs": fs, "Fc": 18.0}.get(n, 1.0) for n in lugre.par.names])
-        said = _implausible(lugre, values, {"breakaway_N": (fs, 0.1)})
+        said = implausible(lugre, values, {"breakaway_N": (fs, 0.1)})
         assert any("below the sliding friction" in w for w in said) == flagged
 
 
@@ -385,7 +385,7 @@ def test_the_memory_lean_path_gives_the_fit_of_the_default_one():
 def test_the_summary_shares_its_jacobian_with_the_turning_point_columns():
     """The default summary builds C^T = J^T B S from its own J and takes the predicted force
     from the residuals' forward pass; both equal what the lean path computes apart
-    (_eiv_gram, one JVP and VJP per parameter) and what per_log predicts. Calibration dataset
+    (eiv_gram, one JVP and VJP per parameter) and what per_log predicts. Calibration dataset
     0 has AR(1) displacement noise: its turning points' errors are not zero."""
     from fitstiff._testing.calibration import dataset as calibration_dataset
     from fitstiff.inference import fitting
@@ -397,11 +397,11 @@ def test_the_summary_shares_its_jacobian_with_the_turning_point_columns():
     theta = problem.pack(*fitting.initial_guess(problem))
     spans = tuple(tuple((s.span.start, s.span.stop) for s in problem.residual_series()
                         if s.log == i) for i in range(problem.n_logs))
-    evaluate = fitting_summary._summary_evaluate
+    evaluate = fitting_summary.summary_evaluate
     shared = problem.compiled(evaluate, spans=spans, sequential=False)(theta)
     apart = problem.compiled(evaluate, spans=spans, sequential=True)(theta)
     assert apart.eiv_gram is None
-    gram = np.asarray(problem.compiled(fitting_summary._eiv_gram)(theta))
+    gram = np.asarray(problem.compiled(fitting_summary.errors_in_variables_gram)(theta))
     assert np.abs(gram).max() > 0
     np.testing.assert_allclose(np.asarray(shared.eiv_gram), gram, rtol=1e-10,
                                atol=1e-12 * np.abs(gram).max())

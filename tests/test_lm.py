@@ -1,11 +1,12 @@
 """fitstiff.inference.lm's Levenberg-Marquardt, in its QR and its normal-equations form: solutions,
 statuses, the bound walk."""
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 import pytest
 
-from fitstiff._jax import jax, jnp
 from fitstiff.inference.lm import (CONVERGED, MAX_STEPS, NONFINITE, STATUS, jacobian_rows,
                                    levenberg_marquardt, r_factor, wide_dot)
 

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fitstiff.cli._common import add_log_arguments, add_out_argument, logs_from_args
+from fitstiff.cli.common import add_log_arguments, add_out_argument, logs_from_args
 from fitstiff.errors import InputError
 from fitstiff.io.columns import match_header
 from fitstiff.io.loading import load_log, load_logs

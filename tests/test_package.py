@@ -24,7 +24,7 @@ def test_the_command_line_limits_malloc_arenas_unless_the_user_did():
     import subprocess
     import sys
 
-    code = "from fitstiff._malloc import limit_arenas; print(limit_arenas())"
+    code = "from fitstiff.malloc import limit_arenas; print(limit_arenas())"
     env = {k: v for k, v in os.environ.items() if k != "MALLOC_ARENA_MAX"}
     ours = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                           env=env, check=True).stdout.strip()
@@ -37,7 +37,7 @@ def test_the_command_line_limits_malloc_arenas_unless_the_user_did():
 #: fitstiff's layers, lowest first: a module imports only from its own layer or a lower one
 #: (README, "Layout"); ``_testing`` (simulators and references for tests and benchmarks) sits
 #: on top and nothing of the library imports it
-LAYERS = (("", "__init__", "errors", "units", "_jax", "_malloc", "_interrupts", "data"),
+LAYERS = (("", "__init__", "errors", "units", "_jax", "malloc", "interrupts", "data"),
           ("signal",), ("io",), ("segments",), ("physics",), ("inference",), ("diagnosis",), ("planning",),
           ("fleet",), ("present",), ("cli", "__main__"), ("_testing",))
 

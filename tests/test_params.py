@@ -8,10 +8,11 @@ from __future__ import annotations
 import dataclasses
 import math
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from fitstiff._jax import jax, jnp
 from fitstiff.errors import InputError
 from fitstiff.inference.problem import NUISANCE_PARAMS
 from fitstiff.physics import derived

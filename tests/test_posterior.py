@@ -380,7 +380,7 @@ def test_an_interrupt_dropped_by_python_still_stops_the_run(tmp_path):
     every step, so the run stops there with the chain kept (a kill was once ignored so)."""
     import gc
 
-    from fitstiff._interrupts import Signals, pending
+    from fitstiff.interrupts import Signals, pending
 
     with Signals():
         handler = signal.getsignal(signal.SIGTERM)
@@ -548,7 +548,7 @@ def test_posterior_that_contradicts_least_squares_says_the_model_is_wrong():
     import types
 
     from fitstiff.inference.fitting import fit
-    from fitstiff.inference.posterior.sampler import _disagreements
+    from fitstiff.inference.posterior.sampler import disagreements
     from fitstiff.io.log import Rig
     from fitstiff.physics.programs import TriangleCycles
     from fitstiff.physics.simulate import Noise, simulate
@@ -558,11 +558,11 @@ def test_posterior_that_contradicts_least_squares_says_the_model_is_wrong():
                "breakaway_N": 4.51 + 0.04 * rng.standard_normal((50, 8))}
     misfit = types.SimpleNamespace(derived={"presliding_slope_N_per_mm": (32.8, 6.5),
                                             "breakaway_N": (6.17, 0.11)})
-    said = _disagreements(misfit, derived, "ar1")
+    said = disagreements(misfit, derived, "ar1")
     assert len(said) == 1 and "breakaway_N" in said[0] and "fitstiff diagnose" in said[0]
     agree = types.SimpleNamespace(derived={"presliding_slope_N_per_mm": (13.9, 0.3),
                                            "breakaway_N": (4.52, 0.05)})
-    assert _disagreements(agree, derived, "ar1") == []
+    assert disagreements(agree, derived, "ar1") == []
 
     rig = Rig.from_mapping(paper_rig())
     log = simulate("dahl", TriangleCycles(rate_mm_s=2.0, amplitudes_mm=(0.2, 0.5, 1.0)),

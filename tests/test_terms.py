@@ -7,12 +7,13 @@ import json
 from pathlib import Path
 
 import equinox as eqx
+import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 from conftest import polyline, triangle
 from scipy.integrate import solve_ivp
 
-from fitstiff._jax import jax, jnp
 from fitstiff.data import paper_rig
 from fitstiff.errors import InputError
 from fitstiff.physics import gas_spring

@@ -19,8 +19,8 @@ import warnings
 from pathlib import Path
 
 from fitstiff import __version__
-from fitstiff._interrupts import Interrupted, Signals, pending
-from fitstiff._malloc import limit_arenas
+from fitstiff.interrupts import Interrupted, Signals, pending
+from fitstiff.malloc import limit_arenas
 from fitstiff.errors import InputError
 
 __all__ = ["main", "SUBCOMMANDS"]
@@ -127,12 +127,12 @@ def _exit_now(signum, frame) -> None:
 def main(argv: list[str] | None = None) -> int:
     """Run one fitstiff command; returns its exit status: 0, 2 (bad input, or no room to
     write), 1 (an internal failure), 130 or 143 (stopped by SIGINT or SIGTERM,
-    :mod:`fitstiff._interrupts`)."""
+    :mod:`fitstiff.interrupts`)."""
     argv = sys.argv[1:] if argv is None else list(argv)
     name = f"fitstiff {argv[0]}" if argv and argv[0] in SUBCOMMANDS else "fitstiff"
     with Signals() as signals, _QuietStdout.installed():
         try:
-            limit_arenas()             # before JAX starts its threads (fitstiff._malloc)
+            limit_arenas()             # before JAX starts its threads (fitstiff.malloc)
             with signals.deferred():   # the command's imports: JAX's extensions (see there)
                 parser = build_parser(argv[0] if argv else None)
             args = parser.parse_args(argv)
@@ -145,7 +145,7 @@ def main(argv: list[str] | None = None) -> int:
                 warnings.filterwarnings("error", message=_NUMERIC_WARNINGS,
                                         category=RuntimeWarning)
                 status = int(args.func(args) or 0)
-            if pending() is not None:  # its exception was lost (fitstiff._interrupts)
+            if pending() is not None:  # its exception was lost (fitstiff.interrupts)
                 raise Interrupted(pending(), kept="the run had finished: its outputs are "
                                                   "complete")
             return status

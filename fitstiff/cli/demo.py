@@ -11,7 +11,7 @@ import argparse
 import contextlib
 from collections.abc import Sequence
 
-from fitstiff.cli._common import add_out_argument
+from fitstiff.cli.common import add_out_argument
 from fitstiff.cli.fit import FIT
 from fitstiff.cli.posterior import PLANNED
 from fitstiff.data import fig4_logs

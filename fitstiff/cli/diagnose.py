@@ -10,7 +10,7 @@ import json
 
 import numpy as np
 
-from fitstiff.cli._common import (add_log_arguments, add_out_argument, input_paths, logs_from_args,
+from fitstiff.cli.common import (add_log_arguments, add_out_argument, input_paths, logs_from_args,
                                   model_spec, reading_options)
 from fitstiff.cli.fit import add_data_arguments, problem_options
 from fitstiff.cli.plan import planned_names, write_plan

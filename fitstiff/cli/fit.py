@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from fitstiff.cli._common import (add_log_arguments, add_out_argument, input_paths, logs_from_args,
+from fitstiff.cli.common import (add_log_arguments, add_out_argument, input_paths, logs_from_args,
                                   model_spec, reading_options)
 from fitstiff.errors import InputError
 from fitstiff.inference.comparison import compare

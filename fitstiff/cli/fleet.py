@@ -7,7 +7,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from fitstiff.cli._common import add_out_argument, add_reading_arguments, reading_options
+from fitstiff.cli.common import add_out_argument, add_reading_arguments, reading_options
 from fitstiff.cli.fit import add_fit_arguments, fit_options
 from fitstiff.errors import InputError
 from fitstiff.io.output import OutputDir

@@ -12,7 +12,7 @@ import argparse
 import contextlib
 import json
 
-from fitstiff.cli._common import add_log_arguments, directory, input_paths, logs_from_args
+from fitstiff.cli.common import add_log_arguments, directory, input_paths, logs_from_args
 from fitstiff.io.output import OutputDir, to_jsonable
 from fitstiff.io.validation import cli_number
 from fitstiff.segments.inspection import format_summary, inspect_log

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from fitstiff.cli._common import directory
+from fitstiff.cli.common import directory
 from fitstiff.errors import InputError
 from fitstiff.io.output import OutputDir, to_jsonable
 from fitstiff.planning import PLAN_DIR

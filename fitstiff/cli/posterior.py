@@ -17,8 +17,8 @@ from signal import SIGINT
 
 import numpy as np
 
-from fitstiff._interrupts import Interrupted, pending
-from fitstiff.cli._common import (add_log_arguments, add_out_argument, input_paths, logs_from_args,
+from fitstiff.interrupts import Interrupted, pending
+from fitstiff.cli.common import (add_log_arguments, add_out_argument, input_paths, logs_from_args,
                                   reading_options)
 from fitstiff.cli.fit import add_fit_arguments, fit_options
 from fitstiff.errors import InputError

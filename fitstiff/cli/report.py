@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from fitstiff.cli._common import directory
+from fitstiff.cli.common import directory
 from fitstiff.errors import InputError
 from fitstiff.present.report import FIGURES, REPORT, REPORT_MANIFEST, RESULT_FILES, write_report
 

@@ -16,7 +16,7 @@ from __future__ import annotations
 import argparse
 import re
 
-from fitstiff.cli._common import add_out_argument, model_spec
+from fitstiff.cli.common import add_out_argument, model_spec
 from fitstiff.data import PAPER_RIG
 from fitstiff.errors import InputError
 from fitstiff.io.log import RIG_KEYS, Rig

@@ -12,7 +12,7 @@ import argparse
 import contextlib
 import json
 
-from fitstiff.cli._common import directory
+from fitstiff.cli.common import directory
 from fitstiff.io.log import RIG_KEYS, Rig
 from fitstiff.io.output import OutputDir, to_jsonable
 from fitstiff.io.validation import cli_number, number

@@ -24,14 +24,15 @@ from fitstiff.physics.terms.base import FrictionBase, Modifier
 from fitstiff.signal.noise import marginal_scale
 from fitstiff.signal.spikes import UNTRUSTED as _UNTRUSTED
 
-__all__ = ["LEAN_JACOBIAN_MB"]
+__all__ = ["LEAN_JACOBIAN_MB", "summary_evaluate", "errors_in_variables_gram",
+           "implausible"]
 
 #: ``"lm"`` switches to ``"lm-normal"`` when the Jacobian (residuals x entries, float64)
 #: would exceed this: optimistix's Levenberg-Marquardt holds about four Jacobian-sized
 #: arrays at once (the accepted point's, the trial point's, the damped operator and its QR;
 #: XLA's buffer assignment), 1.2 GB peak for a 1 M-sample log with two pressure channels
 #: (``benchmarks/fit_memory.py``); and the default covariance summary shares one vectorised
-#: Jacobian between the covariance and the turning-point columns (:func:`_summary_evaluate`).
+#: Jacobian between the covariance and the turning-point columns (:func:`summary_evaluate`).
 #: At 64 MB (the former threshold) that summary peaked 100 MB above the two it replaced
 #: (518 001 samples: 932 against 832 MB). At 48 MB a default fit of 370 001 samples (a
 #: 44 MB Jacobian) peaks at 794 MB, and a 444 001-sample log takes the lean path (652 MB,
@@ -60,11 +61,11 @@ def _summarise(problem: Problem, theta, *, converged: bool, message: str, steps:
     lean = solver == "lm-normal" or _is_lean(problem)
     spans = tuple(tuple((s.span.start, s.span.stop) for s in problem.residual_series()
                         if s.log == i) for i in range(problem.n_logs))
-    ev = problem.compiled(_summary_evaluate, spans=spans, sequential=lean)
+    ev = problem.compiled(summary_evaluate, spans=spans, sequential=lean)
     summary = jax.tree.map(np.asarray, ev(theta))
     if lean:    # apart: the two working sets of a long log do not add up
         summary = summary._replace(eiv_gram=np.asarray(
-            problem.compiled(_eiv_gram)(theta)))
+            problem.compiled(errors_in_variables_gram)(theta)))
     check_finite(problem.logs, "the fit's whitened residuals and Jacobian", summary.largest,
                  limit=_RESIDUAL_LIMIT)
     check_finite(problem.logs, "the fitted parameter values", summary.values, summary.dphys)
@@ -135,7 +136,7 @@ def _summarise(problem: Problem, theta, *, converged: bool, message: str, steps:
             err = float("nan")
         derived[name] = (float(d0[k]), err)
 
-    warnings += _implausible(problem, values, derived)
+    warnings += implausible(problem, values, derived)
     identifiability = _identifiability(problem, summary,
                                        {k: v for k, (v, _) in derived.items()})
     withheld = set(identifiability.parameters)
@@ -225,9 +226,9 @@ def _identifiability(problem: Problem, summary: _Summary,
 
 class _Summary(NamedTuple):
     """What the covariance summary needs of the residuals ``r`` and their Jacobian ``J`` at
-    the optimum, reduced inside one compiled function (:func:`_summary_evaluate`; on a lean
-    problem, two: :func:`_eiv_gram` apart, so that their working sets do not add up): no
-    ``(residuals, parameters)`` array leaves them (a 1 M-sample log's ``J`` and its copies
+    the optimum, reduced inside one compiled function (:func:`summary_evaluate`; on a lean
+    problem, two: :func:`errors_in_variables_gram` apart, so that their working sets do not
+    add up): no ``(residuals, parameters)`` array leaves them (a 1 M-sample log's ``J`` and its copies
     are hundreds of MB, ``benchmarks/fit_memory.py``)."""
 
     cost: jax.Array           # |r|^2
@@ -242,16 +243,17 @@ class _Summary(NamedTuple):
     force: tuple              # per group: the predicted force (leading log axis, padded)
     chamber_stiffness: jax.Array  # (logs,): the chamber's at each log's start (N/m; none: 0)
     #: C^T C of the turning-point error columns C (errors in variables; on a lean problem
-    #: from :func:`_eiv_gram`)
+    #: from :func:`errors_in_variables_gram`)
     eiv_gram: jax.Array | None
 
 
-def _summary_evaluate(problem: Problem, theta, *, spans: tuple[tuple[tuple[int, int], ...], ...],
-                      sequential: bool) -> _Summary:
+def summary_evaluate(problem: Problem, theta, *, spans: tuple[tuple[tuple[int, int], ...], ...],
+                     sequential: bool) -> _Summary:
     """The :class:`_Summary` at ``theta`` (compiled by
     :meth:`~fitstiff.inference.problem.Problem.compiled`); ``spans``: per log, its ``(start, stop)``
     entries of the residual vector; ``sequential``: build ``J`` one column at a time
-    (:func:`fitstiff.inference.lm.jacobian_rows`) and leave ``eiv_gram`` to :func:`_eiv_gram`.
+    (:func:`fitstiff.inference.lm.jacobian_rows`) and leave ``eiv_gram`` to
+    :func:`errors_in_variables_gram`.
 
     Otherwise one compiled function shares ``J`` between the covariance and the
     turning-point columns (``C^T = J^T B S``: a VJP per row of ``J^T``), and the predicted
@@ -309,11 +311,11 @@ def _summary_evaluate(problem: Problem, theta, *, spans: tuple[tuple[tuple[int, 
         force=force, chamber_stiffness=_chamber_stiffness(problem, model), eiv_gram=eiv_gram)
 
 
-def _eiv_gram(problem: Problem, theta):
+def errors_in_variables_gram(problem: Problem, theta):
     """``C^T C`` of the errors in variables at the turning points, ``C = S B^T J`` with
     ``B = d(residuals)/d(displacement)`` and ``S`` the turning points' errors at their
     samples (0 elsewhere), for a lean problem: a JVP and a VJP per parameter, one parameter
-    at a time, so no ``J`` is built (:func:`_summary_evaluate` does it from its ``J``)."""
+    at a time, so no ``J`` is built (:func:`summary_evaluate` does it from its ``J``)."""
     _, vjp = jax.vjp(lambda xs: problem.residuals(theta, xs), problem.displacements())
 
     def column(e):
@@ -352,8 +354,8 @@ def _state_columns(problem: Problem, theta):
     return column
 
 
-def _implausible(problem: Problem, values: np.ndarray,
-                 derived: Mapping[str, tuple[float, float]]) -> list[str]:
+def implausible(problem: Problem, values: np.ndarray,
+                derived: Mapping[str, tuple[float, float]]) -> list[str]:
     """Warnings for estimates a converged fit should not be trusted on (issue 17): a
     parameter at a bound of its range (the data push it out of the model's range, or do not
     hold it), and a breakaway force far above every measured force (the logs never reach

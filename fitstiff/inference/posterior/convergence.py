@@ -27,7 +27,7 @@ from collections.abc import Callable, Sequence
 import emcee
 import numpy as np
 
-from fitstiff._interrupts import deferred
+from fitstiff.interrupts import deferred
 
 __all__ = ["Check", "check_convergence", "integrated_time", "run_chunks", "tau_change_sd"]
 

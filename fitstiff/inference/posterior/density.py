@@ -20,10 +20,13 @@ from fitstiff.inference.problem import Problem
 from fitstiff.physics.derived import DERIVED, derived_quantities
 
 
-__all__ = ["DEFAULT_NOISE_MODEL", "LogPosterior", "log_posterior"]
+__all__ = ["DEFAULT_NOISE_MODEL", "LogPosterior", "log_posterior", "Coordinates",
+           "prepared_noise", "integrated_entries", "residuals_at", "physical_rows",
+           "derived_rows", "force_rows", "batched", "DERIVED_BATCH"]
 
 DEFAULT_NOISE_MODEL = "ar1"
-_DERIVED_BATCH = 256
+#: rows per compiled call of the derived quantities and predictions of kept draws
+DERIVED_BATCH = 256
 
 
 def log_posterior(fit: FitResult, *, noise_model: str | NoiseModel = DEFAULT_NOISE_MODEL,
@@ -39,21 +42,22 @@ def log_posterior(fit: FitResult, *, noise_model: str | NoiseModel = DEFAULT_NOI
     """
     problem = fit.problem
     layout = Layout.from_problem(problem)
-    noise, _ = _prepared(problem, likelihood.noise_model(noise_model), fit.theta, layout)
+    noise, _ = prepared_noise(problem, likelihood.noise_model(noise_model), fit.theta, layout)
     return LogPosterior(problem, noise, Priors(problem, priors), batch=batch,
                         centre=np.asarray(fit.theta))
 
 
-def _prepared(problem: Problem, noise: NoiseModel, theta: np.ndarray, layout: Layout, *,
+def prepared_noise(problem: Problem, noise: NoiseModel, theta: np.ndarray, layout: Layout, *,
               linear: LinearNuisances | None = None) -> tuple[NoiseModel, TurningPoints]:
     """``noise`` with its settings, the turning-point errors at ``theta`` and the ``linear``
     nuisances integrated out."""
     turning = TurningPoints.at(problem, jnp.asarray(theta), layout)
-    return noise.prepared(_residuals(problem, theta), layout, turning_points=turning,
+    return noise.prepared(residuals_at(problem, theta), layout, turning_points=turning,
                           linear=linear), turning
 
 
-def _integrated(problem: Problem, noise: NoiseModel, priors: Priors, wanted: bool) -> list[int]:
+def integrated_entries(problem: Problem, noise: NoiseModel, priors: Priors,
+                       wanted: bool) -> list[int]:
     """Positions in ``theta`` of the entries to integrate out: the problem's linear entries
     (force offsets) with flat priors, when the noise model can."""
     if not (wanted and noise.integrates_linear):
@@ -63,7 +67,7 @@ def _integrated(problem: Problem, noise: NoiseModel, priors: Priors, wanted: boo
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
-class _Coordinates:
+class Coordinates:
     """What the walkers move in: ``theta`` less the entries integrated out analytically.
 
     Attributes:
@@ -78,7 +82,7 @@ class _Coordinates:
 
     @classmethod
     def of(cls, problem: Problem, theta: np.ndarray, integrated: Sequence[int],
-           layout: Layout) -> _Coordinates:
+           layout: Layout) -> Coordinates:
         base = np.asarray(theta, dtype=float)
         sampled = np.setdiff1d(np.arange(base.size), np.asarray(integrated, dtype=int))
         linear = (LinearNuisances.at(problem, base, layout, integrated) if len(integrated)
@@ -125,7 +129,7 @@ class LogPosterior:
     """
 
     def __init__(self, problem: Problem, noise: NoiseModel, priors: Priors, *, batch: int,
-                 coordinates: _Coordinates | None = None, centre: np.ndarray | None = None):
+                 coordinates: Coordinates | None = None, centre: np.ndarray | None = None):
         layout = Layout.from_problem(problem)
         self.problem, self.noise, self.priors, self.batch = problem, noise, priors, batch
         self.coordinates = coordinates
@@ -150,14 +154,14 @@ class LogPosterior:
     def rows(self, coords: np.ndarray) -> np.ndarray:
         """``(rows, 1 + blobs)``: each row's log-posterior, then its :attr:`blobs`
         statistics (emcee's ``log_prob_fn`` returning blobs)."""
-        return _batched(self._fn, np.asarray(coords, dtype=float), batch=self.batch)
+        return batched(self._fn, np.asarray(coords, dtype=float), batch=self.batch)
 
 
-def _full(coordinates: _Coordinates | None, coords):
+def _full(coordinates: Coordinates | None, coords):
     return coords if coordinates is None else coordinates.full(coords)
 
 
-def _row_residuals(p: Problem, coords, *, coordinates: _Coordinates | None,
+def _row_residuals(p: Problem, coords, *, coordinates: Coordinates | None,
                    closed: ClosedFormLikelihood | None, **_):
     """The residuals the log-posterior of one row needs: all, or with ``closed`` those of
     its channels computed from the model."""
@@ -166,7 +170,7 @@ def _row_residuals(p: Problem, coords, *, coordinates: _Coordinates | None,
 
 
 def _given(p: Problem, residuals, coords, *, noise: NoiseModel, priors: Priors,
-           layout: Layout, coordinates: _Coordinates | None,
+           layout: Layout, coordinates: Coordinates | None,
            closed: ClosedFormLikelihood | None):
     """``[log-posterior, statistics...]`` of one row of sampled coordinates, given its
     :func:`_row_residuals` (the statistics: :attr:`LogPosterior.blobs`)."""
@@ -194,20 +198,24 @@ def _log_posterior_rows(p: Problem, rows, **options):
     return jax.vmap(lambda r, c: _given(p, r, c, **options))(residuals, rows)
 
 
-def _physical_rows(p: Problem, rows):
+def physical_rows(p: Problem, rows):
+    """SI values of every entry for each row of ``theta`` (``rows``: one per draw)."""
     return jax.vmap(p.physical)(rows)
 
 
-def _derived_rows(p: Problem, rows):
+def derived_rows(p: Problem, rows):
+    """The derived quantities (:data:`~fitstiff.physics.derived.DERIVED`, in order) of each
+    row of ``theta``."""
     return jax.vmap(lambda th: jnp.stack([_derived(p, th)[k] for k in DERIVED]))(rows)
 
 
-def _force_rows(p: Problem, rows):
+def force_rows(p: Problem, rows):
+    """The predicted force of every group's logs, flattened, for each row of ``theta``."""
     return jax.vmap(lambda theta: jnp.concatenate(
         [pred.force.ravel() for pred in p.predictions(theta)]))(rows)
 
 
-def _batched(fn: Callable, rows: np.ndarray, *, batch: int) -> np.ndarray:
+def batched(fn: Callable, rows: np.ndarray, *, batch: int) -> np.ndarray:
     """``fn`` (compiled for ``batch`` rows) over all ``rows``, padding the last chunk."""
     n = rows.shape[0]
     if n == batch:                     # a sampler's call: no copies
@@ -218,7 +226,8 @@ def _batched(fn: Callable, rows: np.ndarray, *, batch: int) -> np.ndarray:
     return np.concatenate(out)[:n]
 
 
-def _residuals(problem: Problem, theta: np.ndarray) -> np.ndarray:
+def residuals_at(problem: Problem, theta: np.ndarray) -> np.ndarray:
+    """The problem's whitened residuals at ``theta`` (its compiled function), as NumPy."""
     fn = problem.compiled(Problem.residuals)
     return np.asarray(fn(jnp.asarray(theta)))
 

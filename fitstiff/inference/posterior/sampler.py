@@ -19,10 +19,10 @@ from fitstiff.inference.fitting import FitResult, fit_problem
 from fitstiff.inference.likelihood import Layout, NoiseModel
 from fitstiff.inference.posterior.chain import ChainStore, signature
 from fitstiff.inference.posterior.convergence import Check, run_chunks
-from fitstiff.inference.posterior.density import (DEFAULT_NOISE_MODEL, LogPosterior, _Coordinates,
-                                                  _DERIVED_BATCH, _batched, _derived_rows,
-                                                  _force_rows, _integrated, _physical_rows,
-                                                  _prepared, _residuals)
+from fitstiff.inference.posterior.density import (DEFAULT_NOISE_MODEL, DERIVED_BATCH,
+                                                  Coordinates, LogPosterior, batched,
+                                                  derived_rows, force_rows, integrated_entries,
+                                                  physical_rows, prepared_noise, residuals_at)
 from fitstiff.inference.posterior.result import DEFAULT_MOVES, Diagnostics, Posterior
 from fitstiff.inference.priors import Prior, Priors
 from fitstiff.inference.problem import PROBLEM_OPTIONS, Problem
@@ -31,7 +31,7 @@ from fitstiff.io.log import Log
 from fitstiff.physics.derived import DERIVED
 from fitstiff.physics.model import Model
 
-__all__ = ["MOVES", "sample_posterior"]
+__all__ = ["MOVES", "sample_posterior", "disagreements"]
 
 #: emcee proposals (``moves``): name -> factory of emcee's ``moves`` argument
 MOVES: dict[str, Callable[[], list]] = {
@@ -120,7 +120,7 @@ def sample_posterior(logs_or_fit: Sequence[Log] | FitResult, model: Model | str 
         raise InputError(None, f"--moves {moves}", "unknown proposal",
                          f"use one of: {', '.join(MOVES)}")
     layout = Layout.from_problem(problem)
-    integrated = _integrated(problem, noise, prior_set, integrate_offsets)
+    integrated = integrated_entries(problem, noise, prior_set, integrate_offsets)
     sampled = [n for i, n in enumerate(problem.names) if i not in set(integrated)]
     if walkers < 2 * len(sampled):
         raise InputError(None, f"--walkers {walkers}",
@@ -150,8 +150,8 @@ def sample_posterior(logs_or_fit: Sequence[Log] | FitResult, model: Model | str 
                             f"of {', '.join(ident.parameters + ident.derived)} reflects the "
                             "prior and the model's assumptions, not a measurement")
         theta_start = np.asarray(fit_result.theta)
-    coordinates = _Coordinates.of(problem, theta_start, integrated, layout)
-    noise, turning = _prepared(problem, noise, theta_start, layout, linear=coordinates.linear)
+    coordinates = Coordinates.of(problem, theta_start, integrated, layout)
+    noise, turning = prepared_noise(problem, noise, theta_start, layout, linear=coordinates.linear)
     if release:
         release_compiled()
     if turning.columns.shape[1] and getattr(noise, "marginal", None) is None:
@@ -259,7 +259,7 @@ def _start(fit: FitResult, problem: Problem, log_prob: LogPosterior, walkers: in
 
 # -- after sampling ---------------------------------------------------------------------------
 def _collect(problem: Problem, sampler: emcee.EnsembleSampler, check: Check, *,
-             noise: NoiseModel, layout: Layout, priors: Priors, coordinates: _Coordinates,
+             noise: NoiseModel, layout: Layout, priors: Priors, coordinates: Coordinates,
              fit: FitResult | None, thin: int | None, draws: int, tau_multiple: float,
              moves: str, rng: np.random.Generator, warnings: list[str],
              store: ChainStore | None) -> Posterior:
@@ -277,10 +277,10 @@ def _collect(problem: Problem, sampler: emcee.EnsembleSampler, check: Check, *,
     flat = _full_thetas(noise, layout, coordinates, coords.reshape(-1, coords.shape[-1]),
                         None if blobs is None else blobs.reshape(-1, blobs.shape[-1]), rng)
     thetas = flat.reshape(coords.shape[:2] + flat.shape[-1:])
-    physical = problem.compiled(_physical_rows)
-    samples = _batched(physical, flat, batch=_DERIVED_BATCH).reshape(thetas.shape)
-    derived_fn = problem.compiled(_derived_rows)
-    derived_values = _batched(derived_fn, flat, batch=_DERIVED_BATCH)
+    physical = problem.compiled(physical_rows)
+    samples = batched(physical, flat, batch=DERIVED_BATCH).reshape(thetas.shape)
+    derived_fn = problem.compiled(derived_rows)
+    derived_values = batched(derived_fn, flat, batch=DERIVED_BATCH)
     derived = {k: derived_values[:, i].reshape(thetas.shape[:2]) for i, k in enumerate(DERIVED)}
     tau = dict(zip(coordinates.names(problem), map(float, check.tau)))
     integrated = tuple(n for n in problem.names if n not in tau)
@@ -295,7 +295,7 @@ def _collect(problem: Problem, sampler: emcee.EnsembleSampler, check: Check, *,
     if not check.converged:
         warnings.append(f"the chain did not converge: {check.reason}")
     if fit is not None and check.converged:
-        warnings.extend(_disagreements(fit, derived, noise.name))
+        warnings.extend(disagreements(fit, derived, noise.name))
     if store is not None:
         store.write_kept(thetas)
     best = flat[int(np.argmax(log_prob.ravel()))]
@@ -306,8 +306,8 @@ def _collect(problem: Problem, sampler: emcee.EnsembleSampler, check: Check, *,
                      warnings=tuple(warnings))
 
 
-def _disagreements(fit: FitResult, derived: Mapping[str, np.ndarray],
-                   noise_name: str) -> list[str]:
+def disagreements(fit: FitResult, derived: Mapping[str, np.ndarray],
+                  noise_name: str) -> list[str]:
     """Where the converged posterior's median of the slope or the breakaway sits more than
     :data:`_DISAGREEMENT` combined standard deviations from the least-squares value: on
     misspecified data the estimate depends on how the residuals are weighted (the noise
@@ -332,7 +332,7 @@ def _disagreements(fit: FitResult, derived: Mapping[str, np.ndarray],
     return out
 
 
-def _full_thetas(noise: NoiseModel, layout: Layout, coordinates: _Coordinates,
+def _full_thetas(noise: NoiseModel, layout: Layout, coordinates: Coordinates,
                  coords: np.ndarray, blobs: np.ndarray | None,
                  rng: np.random.Generator) -> np.ndarray:
     """Full ``theta`` rows of sampled ``coords``: the integrated entries drawn from their
@@ -356,10 +356,10 @@ def _predictive(problem: Problem, noise: NoiseModel, layout: Layout, flat: np.nd
     """Model-force draws per log (thinned to at most ``_PREDICTIVE_POINTS`` samples), the
     median and spread of the draws at every sample, and the noise level per series at the
     most probable sample."""
-    fn = problem.compiled(_force_rows)
+    fn = problem.compiled(force_rows)
     pick = rng.choice(flat.shape[0], size=min(draws, flat.shape[0]), replace=False)
-    curves = _batched(fn, flat[np.sort(pick)], batch=_PREDICTIVE_BATCH)
-    whitened = np.asarray(noise.series_scale(jnp.asarray(_residuals(problem, best)), layout))
+    curves = batched(fn, flat[np.sort(pick)], batch=_PREDICTIVE_BATCH)
+    whitened = np.asarray(noise.series_scale(jnp.asarray(residuals_at(problem, best)), layout))
     arrays: dict[str, np.ndarray] = {"log_names": np.array([g.name for g in problem.logs])}
     scale: dict[str, tuple[float, str]] = {}
     offset = 0

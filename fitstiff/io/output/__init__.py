@@ -29,7 +29,7 @@ Every command that writes takes ``--out DIR`` and goes through one :class:`Outpu
 3. **Stage, then commit**: files are written into a private staging directory
    ``DIR/.fitstiff-partial-<pid>-<n>/`` and moved into place (``os.replace``, atomic per file)
    by :meth:`OutputDir.finish`, the manifest (staged with them, so a full disk fails the run
-   before anything is moved) last. A signal received meanwhile (:mod:`fitstiff._interrupts`)
+   before anything is moved) last. A signal received meanwhile (:mod:`fitstiff.interrupts`)
    stops :meth:`OutputDir.finish` before it moves anything. A run that fails leaves
    DIR as it was: the staging directory and a DIR it created are removed (a staging directory
    left by a killed run is clearly named and removed by the next run on DIR). Only a

@@ -15,7 +15,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 
-from fitstiff._interrupts import Interrupted, pending
+from fitstiff.interrupts import Interrupted, pending
 from fitstiff.errors import InputError
 from fitstiff.io.guards import first_nonfinite
 from fitstiff.io.output._files import _give_mode, _real, sha256_file, to_jsonable
