@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
 from fitstiff._testing.recovery import dataset
 from fitstiff.errors import InputError
 from fitstiff.inference.problem import Problem
+from fitstiff.inference.selection import PROBLEM_OPTIONS, Selection
 from fitstiff.segments.segmentation import segment
 
 
@@ -109,3 +112,35 @@ def test_unpack_physical_is_unpack_without_the_transforms(logs):
     for name, values in nuisances.items():
         assert isinstance(nuisances_np[name], np.ndarray)
         np.testing.assert_allclose(nuisances_np[name], values, rtol=1e-14, err_msg=name)
+
+
+def test_the_data_options_travel_as_one_record(logs):
+    """Issue 35: the six data options are one frozen Selection, passed whole; the keywords
+    build the same record, a re-opened run's JSON options give it back, and a problem keeps
+    the one it was given."""
+    options = {"denoise": "off", "sample_range": [10, 900], "weights": {"presliding": 2.0},
+               "skip": 5, "free": ["closing_pressure"], "exclude": [[100, 200]]}
+    selection, rest = Selection.pick(options | {"solver": "lm", "starts": 2})
+    assert rest == {"solver": "lm", "starts": 2}
+    assert selection.sample_range == (10, 900) and selection.exclude == ([100, 200],)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        selection.skip = 0
+    assert Selection.pick(selection.to_dict())[0] == selection           # the JSON round trip
+    assert set(selection.keywords()) == set(PROBLEM_OPTIONS)
+    whole = Problem(logs, "chamber+dahl", selection=selection)
+    keywords = Problem(logs, "chamber+dahl", **options)
+    assert whole.selection is selection and keywords.selection == selection
+    assert whole.denoised == [False, False]
+    for a, b in zip(whole.sample_weights, keywords.sample_weights):
+        np.testing.assert_array_equal(a, b)
+    w = whole.sample_weights[0]
+    assert not w[:10].any() and not w[900:].any() and not w[100:200].any()
+    assert np.all(w[300:400][np.asarray(whole.segmentations[0].mask("presliding"))[300:400]]
+                  == 2.0)
+    assert "closing_pressure" in whole.nuisance_names
+    with pytest.raises(TypeError, match="either as a Selection or as keywords"):
+        Problem(logs, "chamber+dahl", selection=selection, skip=3)
+    with pytest.raises(TypeError, match="unexpected keyword argument.*skipp"):
+        Problem(logs, "chamber+dahl", skipp=3)
+    with pytest.raises(InputError, match="exclude \\(5, 2\\).*0 <= start < stop"):
+        Problem(logs, "chamber+dahl", selection=Selection(exclude=[(5, 2)]))

@@ -86,7 +86,7 @@ def planned_names(max_programs: int) -> list[str]:
 
 def run(args) -> int:
     from fitstiff.diagnosis import RESULT, Diagnosis
-    from fitstiff.inference.problem import PROBLEM_OPTIONS
+    from fitstiff.inference.selection import Selection
     from fitstiff.planning import plan
     from fitstiff.planning.plan import MAX_PROGRAMS
     from fitstiff.present.reopen import open_run
@@ -101,9 +101,7 @@ def run(args) -> int:
                          "give the --out directory of fitstiff diagnose")
     diagnosis = Diagnosis.from_dict(source.result)
     options = source.manifest.get("options", {})
-    problem_kw = {k: options[k] for k in PROBLEM_OPTIONS if k in options}
-    if problem_kw.get("sample_range") is not None:
-        problem_kw["sample_range"] = tuple(problem_kw["sample_range"])
+    selection, _ = Selection.pick(options)
     limits = limits_from_args(args, source.logs)
     count = args.max_programs or MAX_PROGRAMS
     separate = [s for s in (args.separate or "").split(",") if s] or None
@@ -114,7 +112,7 @@ def run(args) -> int:
                             "separate": separate, "seed": args.seed,
                             "max_programs": count}) as out:
         result = plan(diagnosis, list(source.logs), limits=limits, separate=separate,
-                      max_programs=count, seed=args.seed, **problem_kw)
+                      max_programs=count, seed=args.seed, selection=selection)
         write_plan(out, result)
         out.finish()
     if args.json:

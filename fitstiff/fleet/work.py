@@ -120,10 +120,11 @@ def fit_units(units: Sequence[Unit], settings: Settings) -> list[dict[str, objec
     that fails has its one-line message in ``error`` (and ``converged`` False)."""
     from fitstiff.inference.fitting import fit_problem, fit_problems
     from fitstiff.inference.problem import Problem
+    from fitstiff.inference.selection import Selection
     from fitstiff.io.loading import load_logs
 
     settings_text = settings.text()
-    problem_keys = ("denoise", "sample_range", "weights", "skip", "free")
+    selection, _ = Selection.pick(settings.fit)
     solve_keys = ("solver", "max_steps")
     rows: list[dict[str, object]] = []
     ready = []
@@ -141,8 +142,7 @@ def fit_units(units: Sequence[Unit], settings: Settings) -> list[dict[str, objec
                 raise InputError(where, "cylinder", "has no logs", "put its CSV logs in its "
                                  "folder, or list them in the manifest")
             logs = load_logs(unit.files, **settings.reading)
-            problem = Problem(logs, settings.model, fix=settings.fix,
-                              **{k: v for k, v in settings.fit.items() if k in problem_keys})
+            problem = Problem(logs, settings.model, fix=settings.fix, selection=selection)
             ready.append((row, logs, problem))
         except Exception as exc:      # one bad cylinder never stops the fleet
             row["error"] = _failure(exc)

@@ -16,7 +16,8 @@ import numpy as np
 
 from fitstiff.errors import InputError
 from fitstiff.inference.fitting import FitResult, fit, fit_problem
-from fitstiff.inference.problem import PROBLEM_OPTIONS, Problem
+from fitstiff.inference.problem import Problem
+from fitstiff.inference.selection import Selection
 from fitstiff.io.log import Log
 from fitstiff.physics.model import Model
 from fitstiff.physics.params import named_params
@@ -29,7 +30,7 @@ __all__ = ["Comparison", "check_specs", "compare", "held_out_rms", "pooled_noise
 def predict_held_out(log: Log, model: Model, **problem_kw) -> tuple[float, FitResult]:
     """RMS force error (N) of ``model`` on ``log`` with only the log's nuisances fitted."""
     names = [n for _, _, ns in named_params(model) for n in ns]
-    problem = Problem([log], model, fix=names, **problem_kw)
+    problem = Problem([log], model, fix=names, selection=Selection.pick(problem_kw)[0])
     result = fit_problem(problem)
     return result.rms_N, result
 
@@ -39,12 +40,12 @@ def held_out_rms(logs: Sequence[Log], model: Model | str, **fit_kw) -> list[floa
     if len(logs) < 2:
         raise InputError(None, "held-out error over logs", f"got {len(logs)} log",
                          "give two logs or more (or rank by BIC)")
-    problem_kw = {k: fit_kw[k] for k in PROBLEM_OPTIONS if k in fit_kw}
+    selection, _ = Selection.pick(fit_kw)
     out = []
     for i in range(len(logs)):
         train = [log for j, log in enumerate(logs) if j != i]
         trained = fit(train, model, **fit_kw)
-        rms, _ = predict_held_out(logs[i], trained.model, **problem_kw)
+        rms, _ = predict_held_out(logs[i], trained.model, selection=selection)
         out.append(rms)
     return out
 
@@ -78,10 +79,10 @@ def check_specs(logs: Sequence[Log], specs: Sequence[str], **fit_kw) -> None:
     e.g. a chamber term without ``bore_mm``), so that no fit runs before all can."""
     if not specs:
         raise InputError(None, "--compare", "names no model", "give SPEC,SPEC,...")
-    problem_kw = {k: fit_kw[k] for k in PROBLEM_OPTIONS if k in fit_kw}
+    selection, _ = Selection.pick(fit_kw)
     for spec in specs:
         try:
-            Problem(list(logs), spec, **problem_kw)
+            Problem(list(logs), spec, selection=selection)
         except InputError as exc:
             raise InputError(None, f"--compare model '{spec}'", str(exc),
                              "drop it from --compare or give what it needs") from None

@@ -31,6 +31,7 @@ import numpy as np
 
 from fitstiff._jax import jax, jnp
 from fitstiff.errors import InputError
+from fitstiff.inference.selection import PROBLEM_OPTIONS, Selection
 from fitstiff.inference.compiling import compile_for, compiled_batch, fingerprint
 from fitstiff.inference.stacking import Group, build_groups, same_structure
 from fitstiff.io.guards import check_logs
@@ -43,7 +44,7 @@ from fitstiff.physics.terms import Chamber, FrictionBase
 from fitstiff.segments.denoise import (chatters, denoise_displacement, reversal_samples,
                                        segment_velocity, smooth_acceleration, smooth_force,
                                        turning_points)
-from fitstiff.segments.segmentation import REGIONS, Segmentation, estimate_noise, segment
+from fitstiff.segments.segmentation import Segmentation, estimate_noise, segment
 from fitstiff.signal.noise import marginal_scale, noise_floor
 
 __all__ = ["Problem", "compiled_batch", "NUISANCES", "OPTIONAL_NUISANCES", "PROBLEM_OPTIONS",
@@ -63,8 +64,6 @@ NUISANCE_PARAMS = {
 }
 #: per-log nuisance names (fit.json ``per_log``)
 NUISANCES = tuple(NUISANCE_PARAMS)
-#: keyword options of :class:`Problem` that a fit passes through (and a report must repeat)
-PROBLEM_OPTIONS = ("denoise", "sample_range", "weights", "skip", "free", "exclude")
 #: nuisances held unless asked for with ``free``
 OPTIONAL_NUISANCES = ("closing_pressure",)
 #: the observed channels of a log, in the order of the residual vector
@@ -98,19 +97,9 @@ class Problem:
         fix: parameters to hold: names (held at the model's value) or a mapping name ->
             SI value (``{"n": 1.4}``; ``None`` holds the model's value). Nuisance names
             ``offset`` / ``friction_state0`` fix those for every log (at 0).
-        denoise: replace each displacement by its reversal-preserving monotone estimate
-            (:mod:`fitstiff.segments.denoise`) before driving the model. ``"auto"``: when the
-            estimated displacement noise is above 0.05 um, or when the displacement turns
-            where the segmentation finds no reversal (:func:`~fitstiff.segments.denoise.chatters`: a
-            quantised encoder toggling by one count during a pause).
-        sample_range: ``(start, stop)`` sample indices used in every log (others weigh 0).
-        weights: extra weight per segmentation region, e.g. ``{"presliding": 4.0}``.
-        skip: samples at the start of every log that drive the model but weigh 0 (a warm-up
-            that settles the friction state).
-        exclude: sample index ranges ``(start, stop)`` of every log that drive the model but
-            weigh 0 (a glitch, or a block held out to be predicted).
-        free: optional nuisances to fit: ``"closing_pressure"`` (each log's closing pressure
-            of its closed chambers; ``supply_bar`` then only gives the start value).
+        selection: the data options (:class:`~fitstiff.inference.selection.Selection`:
+            denoising, the sample range, region weights, skipped and excluded samples, optional
+            nuisances); or give its fields as keywords (``denoise="off"``, ``skip=100``).
         segmentations: one :class:`~fitstiff.segments.segmentation.Segmentation` per log (reversals,
             pauses, regions, displacement noise), e.g. from
             :func:`~fitstiff.segments.segmentation.segment` with other options; default
@@ -121,14 +110,13 @@ class Problem:
     """
 
     def __init__(self, logs: Sequence[Log], model: Model | str, *,
-                 fix: Mapping[str, float | None] | Iterable[str] = (), denoise: bool | str = "auto",
-                 sample_range: tuple[int | None, int | None] | None = None,
-                 weights: Mapping[str, float] | None = None, skip: int = 0,
-                 free: Iterable[str] = (), exclude: Sequence[tuple[int, int]] = (),
-                 segmentations: Sequence[Segmentation] | None = None):
+                 fix: Mapping[str, float | None] | Iterable[str] = (),
+                 selection: Selection | None = None,
+                 segmentations: Sequence[Segmentation] | None = None, **options):
         if not logs:
             raise InputError(None, "logs", "none given", "name at least one CSV log")
-        free = set(free)
+        self.selection = selection = Selection.given(selection, options)
+        free = set(selection.free)
         if free - set(OPTIONAL_NUISANCES):
             raise InputError(None, f"--free {', '.join(sorted(free - set(OPTIONAL_NUISANCES)))}",
                              "is not an optional nuisance",
@@ -139,7 +127,7 @@ class Problem:
         spec = model if isinstance(model, str) else model.spec
         needs = model_needs(model)
         self.displacement_noise = [s.noise for s in self.segmentations]
-        self.denoised = [self._want_denoise(denoise, s, log.displacement)
+        self.denoised = [self._want_denoise(selection.denoise, s, log.displacement)
                          for log, s in zip(self.logs, self.segmentations)]
         self.drives: list[Drive] = []
         for log, seg, den in zip(self.logs, self.segmentations, self.denoised):
@@ -189,8 +177,9 @@ class Problem:
             {c: max(channel_noise(p), _PRESSURE_NOISE_FLOOR)
              for c, p in (("a", log.pressure_a), ("b", log.pressure_b)) if p is not None}
             for log in self.logs]
-        self.sample_weights = [self._weights(log, seg, sample_range, weights, skip, exclude)
-                               for log, seg in zip(self.logs, self.segmentations)]
+        self.sample_weights = [
+            selection.sample_weights(len(log), seg, where=log.path and str(log.path) or log.name)
+            for log, seg in zip(self.logs, self.segmentations)]
         self._groups = build_groups(self.drives, self.logs, self.sample_weights, self.force_noise,
                                     self.pressure_noise)
         self._compiled: dict[tuple, Callable] = {}
@@ -212,42 +201,6 @@ class Problem:
         if denoise == "auto":
             return seg.noise > 0.05e-6 or chatters(displacement, seg.reversals)
         return bool(denoise)
-
-    @staticmethod
-    def _weights(log, seg, sample_range, weights, skip, exclude) -> np.ndarray:
-        n = len(log)
-        w = np.ones(n)
-        if sample_range is not None:
-            start, stop = sample_range
-            keep = np.zeros(n, dtype=bool)
-            keep[slice(start, stop)] = True
-            w[~keep] = 0.0
-        if skip:
-            w[:skip] = 0.0
-        for item in exclude:
-            try:
-                start, stop = (int(v) for v in item)
-            except (TypeError, ValueError):
-                raise InputError(None, f"exclude {item!r}", "is not a (start, stop) pair of "
-                                 "sample indices", "give e.g. (1000, 2000)") from None
-            if not 0 <= start < stop:
-                raise InputError(None, f"exclude ({start}, {stop})", "is not a range of "
-                                 "sample indices with 0 <= start < stop",
-                                 "give e.g. (1000, 2000)")
-            w[start:stop] = 0.0
-        for region, factor in (weights or {}).items():
-            if region not in REGIONS:
-                raise InputError(None, f"--weight {region}={factor}", "unknown region",
-                                 f"use one of: {', '.join(REGIONS)}")
-            if factor < 0 or not math.isfinite(factor):
-                raise InputError(None, f"--weight {region}={factor}", "negative or not finite",
-                                 "give a weight >= 0")
-            w[seg.mask(region)] *= factor
-        if not np.any(w > 0):
-            raise InputError(log.path and str(log.path) or log.name, "sample selection",
-                             "leaves no sample with weight > 0",
-                             "widen --range or lower --skip")
-        return w
 
     @property
     def groups(self) -> tuple:

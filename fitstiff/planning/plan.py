@@ -31,6 +31,7 @@ from fitstiff.planning.separation import (LEVEL, POWER, Noise, detectable_size,
                                           noncentrality, outputs, sizes)
 from fitstiff.segments.segmentation import standstill
 from fitstiff.inference.problem import channel_noise
+from fitstiff.inference.selection import Selection
 from fitstiff.units import BAR, MM
 
 __all__ = ["plan", "Plan", "PlannedProgram", "MAX_PROGRAMS", "PREDICTED", "noise_of",
@@ -249,7 +250,7 @@ class _Scorer:
 
 def plan(diagnosis: Diagnosis, logs: Sequence[Log], *, limits: Limits | None = None,
          separate: Sequence[str] | None = None, max_programs: int = MAX_PROGRAMS,
-         seed: int = 0, **problem_kw) -> Plan:
+         seed: int = 0, selection: Selection | None = None, **options) -> Plan:
     """The programs that settle what ``diagnosis`` could not.
 
     Args:
@@ -260,7 +261,8 @@ def plan(diagnosis: Diagnosis, logs: Sequence[Log], *, limits: Limits | None = N
             diagnosis' confusions.
         max_programs: the most programs (:data:`RUNS` per confusion).
         seed: seeds the rivals' fits.
-        problem_kw: the diagnosis' data options (denoise, sample_range, weights, skip).
+        selection: the diagnosis' data options
+            (:class:`~fitstiff.inference.selection.Selection`), or its fields as keywords.
 
     Returns:
         The :class:`Plan`; a confusion no program of the limits separates is in
@@ -270,7 +272,8 @@ def plan(diagnosis: Diagnosis, logs: Sequence[Log], *, limits: Limits | None = N
     limits = limits or Limits.from_logs(logs)
     noise = noise_of(diagnosis, logs)
     found = confusions(diagnosis, separate=separate)[:max(1, max_programs // RUNS)]
-    rivals = Rivals(logs, diagnosis.final_model, seed=seed, **problem_kw)
+    rivals = Rivals(logs, diagnosis.final_model, seed=seed,
+                    selection=Selection.given(selection, options))
     spent = {"rivals": 0.0, "search": 0.0}
     programs, unplanned = [], []
     naive_log = max(logs, key=len)

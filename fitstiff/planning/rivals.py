@@ -32,6 +32,7 @@ from fitstiff.diagnosis.result import Diagnosis
 from fitstiff.diagnosis.supermodel import spec_token
 from fitstiff.errors import InputError
 from fitstiff.inference.fitting import fit
+from fitstiff.inference.selection import Selection
 from fitstiff.io.log import Log
 from fitstiff.physics.model import build_model, parse_spec
 from fitstiff.physics.params import named_params
@@ -118,15 +119,16 @@ class Rivals:
     Args:
         logs: the diagnosis' logs.
         final_model: the diagnosis' final model spec (baseline plus accepted effects).
-        problem_kw: the diagnosis' data options (denoise, sample_range, weights, skip).
+        seed: seeds the rival fits.
+        selection: the diagnosis' data options (default: the defaults).
     """
 
     def __init__(self, logs: Sequence[Log], final_model: str, *, seed: int = 0,
-                 **problem_kw):
+                 selection: Selection | None = None):
         self.logs = list(logs)
         self.terms = [name for name, _ in parse_spec(final_model)]
         self.seed = seed
-        self.problem_kw = problem_kw
+        self.selection = selection or Selection()
         self._fits: dict[tuple, Rival] = {}
 
     def spec(self, effects: Sequence[str], *, drop: Sequence[str] = ()) -> str:
@@ -138,7 +140,8 @@ class Rivals:
         values, whatever the name it is asked for under)."""
         key = (spec, tuple(sorted(fix.items())))
         if key not in self._fits:
-            result = fit(self.logs, spec, fix=dict(fix), seed=self.seed, **self.problem_kw)
+            result = fit(self.logs, spec, fix=dict(fix), seed=self.seed,
+                         **self.selection.keywords())
             if not result.converged:
                 raise InputError(None, f"the rival fit of {spec}",
                                  f"did not converge ({result.message})",

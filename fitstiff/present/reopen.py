@@ -15,7 +15,7 @@ SHA-256 (a missing or changed file is an :class:`~fitstiff.errors.InputError` na
 with the manifest's reading options (``options["reading"]``: keyword arguments of
 :func:`~fitstiff.io.loading.load_logs`, when recorded), and the
 :class:`~fitstiff.inference.problem.Problem` is rebuilt with the recorded model, fixed parameters
-and problem options (:data:`~fitstiff.inference.problem.PROBLEM_OPTIONS`).
+and data options (:class:`~fitstiff.inference.selection.Selection`).
 
 **The curves are recomputed, not stored.** Fit: the parameters of ``fit.json`` and each log's
 offset and initial friction state give the fitted ``theta`` exactly; every log's RMS residual
@@ -43,7 +43,8 @@ from fitstiff.errors import InputError
 from fitstiff.inference.fitting import FitResult
 from fitstiff.inference.posterior import PREDICTIVE, Posterior, PosteriorRecord
 from fitstiff.inference.posterior.chain import CHAIN, ChainStore
-from fitstiff.inference.problem import NUISANCES, PROBLEM_OPTIONS, Problem
+from fitstiff.inference.problem import NUISANCES, Problem
+from fitstiff.inference.selection import Selection
 from fitstiff.io.loading import load_logs
 from fitstiff.io.log import Log
 from fitstiff.io.output import sha256_file
@@ -200,10 +201,7 @@ def _problem(logs: Sequence[Log], result: Mapping[str, Any],
                    if p.get("fixed")}, where=where)
     fix |= dict.fromkeys(n for item in options.get("fix", [])
                          if (n := item.partition("=")[0]) in NUISANCES)
-    recorded = {k: options[k] for k in PROBLEM_OPTIONS if k in options}
-    if recorded.get("sample_range") is not None:        # a JSON list
-        recorded["sample_range"] = tuple(recorded["sample_range"])
-    return Problem(logs, spec, fix=fix, **recorded)
+    return Problem(logs, spec, fix=fix, selection=Selection.pick(options)[0])
 
 
 # -- the model's curves ---------------------------------------------------------------------

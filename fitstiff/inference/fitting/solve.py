@@ -18,6 +18,7 @@ from fitstiff.inference.fitting.result import FitResult
 from fitstiff.inference.fitting.start import initial_guess
 from fitstiff.inference.fitting.summary import _is_lean, _lag1, _summarise
 from fitstiff.inference.problem import Problem, compiled_batch
+from fitstiff.inference.selection import Selection
 from fitstiff.io.log import Log
 from fitstiff.physics.model import Model
 
@@ -69,8 +70,8 @@ def fit(logs: Sequence[Log], model: Model | str, *, fix: Mapping[str, float] | I
             ``"lm-normal"``, which ``FitResult.solver`` then names).
         starts: number of starts; the first from :func:`initial_guess`, the others random
             perturbations of it (``seed``); the best converged run is kept.
-        denoise, sample_range, weights, skip, free, exclude: see
-            :class:`~fitstiff.inference.problem.Problem`
+        denoise, sample_range, weights, skip, free, exclude: the data options, see
+            :class:`~fitstiff.inference.selection.Selection`
             (``free=["closing_pressure"]`` fits each log's closing pressure).
 
     Returns:
@@ -81,8 +82,9 @@ def fit(logs: Sequence[Log], model: Model | str, *, fix: Mapping[str, float] | I
         >>> result = fit(logs, "chamber+dahl", fix={"n": 1.4})          # doctest: +SKIP
         >>> print(result.table())                                        # doctest: +SKIP
     """
-    problem = Problem(logs, model, fix=fix, denoise=denoise, sample_range=sample_range,
-                      weights=weights, skip=skip, free=free, exclude=exclude)
+    selection = Selection(denoise=denoise, sample_range=sample_range, weights=weights,
+                          skip=skip, free=free, exclude=exclude)
+    problem = Problem(logs, model, fix=fix, selection=selection)
     return fit_problem(problem, solver=solver, starts=starts, seed=seed, max_steps=max_steps,
                        rtol=rtol, atol=atol)
 

@@ -228,8 +228,8 @@ class _Summary(NamedTuple):
     """What the covariance summary needs of the residuals ``r`` and their Jacobian ``J`` at
     the optimum, reduced inside one compiled function (:func:`summary_evaluate`; on a lean
     problem, two: :func:`errors_in_variables_gram` apart, so that their working sets do not
-    add up): no ``(residuals, parameters)`` array leaves them (a 1 M-sample log's ``J`` and its copies
-    are hundreds of MB, ``benchmarks/fit_memory.py``)."""
+    add up): no ``(residuals, parameters)`` array leaves them (a 1 M-sample log's ``J`` and
+    its copies are hundreds of MB, ``benchmarks/fit_memory.py``)."""
 
     cost: jax.Array           # |r|^2
     largest: jax.Array        # max |entry| of r and J (NaN counts as infinite)

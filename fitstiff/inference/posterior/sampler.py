@@ -25,7 +25,8 @@ from fitstiff.inference.posterior.density import (DEFAULT_NOISE_MODEL, DERIVED_B
                                                   physical_rows, prepared_noise, residuals_at)
 from fitstiff.inference.posterior.result import DEFAULT_MOVES, Diagnostics, Posterior
 from fitstiff.inference.priors import Prior, Priors
-from fitstiff.inference.problem import PROBLEM_OPTIONS, Problem
+from fitstiff.inference.problem import Problem
+from fitstiff.inference.selection import Selection
 from fitstiff.io.guards import nonfinite_error
 from fitstiff.io.log import Log
 from fitstiff.physics.derived import DERIVED
@@ -70,7 +71,7 @@ def sample_posterior(logs_or_fit: Sequence[Log] | FitResult, model: Model | str 
         model: spec string or built model (with logs).
         fix: parameters to hold, as in :func:`~fitstiff.inference.fitting.fit`.
         fit_options: keyword arguments of :func:`~fitstiff.inference.fitting.fit` (the problem's
-            :data:`~fitstiff.inference.problem.PROBLEM_OPTIONS` and solver options).
+            :class:`~fitstiff.inference.selection.Selection`'s fields and solver options).
         noise_model: ``"ar1"`` (default), ``"gaussian"``, ``"student_t"`` or an instance
             from :mod:`fitstiff.inference.likelihood`.
         priors: overrides of the default priors (:mod:`fitstiff.inference.priors`): a mapping or the
@@ -214,12 +215,12 @@ def _problem(logs_or_fit, model, fix, fit_options) -> tuple[Problem, FitResult |
         return logs_or_fit.problem, logs_or_fit
     if model is None:
         raise InputError(None, "model", "none given", "give a spec such as 'chamber+dahl'")
-    options = {k: v for k, v in fit_options.items() if k in PROBLEM_OPTIONS}
-    return Problem(list(logs_or_fit), model, fix=fix, **options), None
+    selection, _ = Selection.pick(fit_options)
+    return Problem(list(logs_or_fit), model, fix=fix, selection=selection), None
 
 
 def _solver_options(fit_options: Mapping[str, object]) -> dict[str, object]:
-    return {k: v for k, v in fit_options.items() if k not in PROBLEM_OPTIONS}
+    return Selection.pick(fit_options)[1]
 
 
 def _start(fit: FitResult, problem: Problem, log_prob: LogPosterior, walkers: int,
