@@ -6,7 +6,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fitstiff.segments.denoise import _curvature_noise, _quadratic_curvature, smooth_acceleration
+from fitstiff.segments.denoise import curvature_noise, quadratic_curvature, smooth_acceleration
 
 INERTIA = Path(__file__).resolve().parents[1] / "data" / "synthetic" / "effects" / "inertia"
 
@@ -37,8 +37,8 @@ def test_the_noise_formula_matches_a_simulation():
     rng = np.random.default_rng(2)
     t = np.arange(0, 2.0, 1e-3)
     m, noise = 8, 1e-6
-    a = _quadratic_curvature(noise * rng.normal(size=t.size), t, m)
-    assert np.std(a[m:-m]) == pytest.approx(_curvature_noise(m, noise, 1e-3), rel=0.1)
+    a = quadratic_curvature(noise * rng.normal(size=t.size), t, m)
+    assert np.std(a[m:-m]) == pytest.approx(curvature_noise(m, noise, 1e-3), rel=0.1)
 
 
 def test_a_fit_with_inertia_recovers_the_mass_of_the_bundled_set():
@@ -79,4 +79,4 @@ def test_a_rounded_triangle_corner_keeps_its_impulse():
 
     error = rms_error(smooth_acceleration(x, t, noise=0.6e-6))
     assert error < 0.3 * np.sqrt(np.mean(truth[inner] ** 2))
-    assert error < min(rms_error(_quadratic_curvature(x, t, m)) for m in (2, 3, 5, 10, 25, 50))
+    assert error < min(rms_error(quadratic_curvature(x, t, m)) for m in (2, 3, 5, 10, 25, 50))

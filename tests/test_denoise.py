@@ -94,7 +94,7 @@ def test_smooth_force_sheds_noise_and_keeps_a_presliding_corner():
     pre-sliding branch is 22 samples long) with 0.2 N white noise: the smoothed force is
     closer to the truth than the noise overall and keeps the sharp reversal, which a fixed
     41-sample window smears by newtons."""
-    from fitstiff.segments.denoise import _value_noise, smooth_force
+    from fitstiff.segments.denoise import smooth_force, value_noise
 
     t = np.arange(4000) / 500.0
     x = 2e-3 * np.abs(((t / 0.2) % 2.0) - 1.0)           # triangles, 2 mm, 10 mm/s
@@ -114,10 +114,10 @@ def test_smooth_force_sheds_noise_and_keeps_a_presliding_corner():
     fixed = np.convolve(noisy, np.ones(41) / 41, mode="same")
     assert np.abs(fixed - f)[near].max() > 3.0          # measured 6.3 N
     # the interval widths come from the exact variance of a local parabola's value
-    assert _value_noise(1, 0.2) == pytest.approx(0.2)
+    assert value_noise(1, 0.2) == pytest.approx(0.2)
     k = np.arange(-5, 6.0)
     design = np.stack([np.ones_like(k), k, k**2], axis=1)
-    assert _value_noise(5, 1.0) == pytest.approx(np.sqrt(np.linalg.inv(design.T @ design)[0, 0]))
+    assert value_noise(5, 1.0) == pytest.approx(np.sqrt(np.linalg.inv(design.T @ design)[0, 0]))
 
 
 def _paused_log(*, quantum: float, noise: float, seed: int = 0) -> Log:
@@ -179,11 +179,11 @@ def _grid_scan(values):
 
     f = np.asarray(values, float)
     lags = np.arange(1, 5)
-    d = np.array([noise._robust_var(f[2 * k:] - 2 * f[k:-k] + f[:-2 * k]) for k in lags])
+    d = np.array([noise.robust_var(f[2 * k:] - 2 * f[k:-k] + f[:-2 * k]) for k in lags])
     best = (np.inf, 0.0, 0.0)
     curvature = lags.astype(float) ** 4 / d
-    for rho in noise._GRID:
-        shape = noise._shape(rho, lags) / d
+    for rho in noise.RHO_GRID:
+        shape = noise.ar1_shape(rho, lags) / d
         (x, y), *_ = np.linalg.lstsq(np.stack([shape, curvature], 1), np.ones(4), rcond=None)
         if not (x >= 0 and y >= 0):
             x, y = max(float(shape.sum() / (shape @ shape)), 0.0), 0.0

@@ -165,14 +165,8 @@ def fit_fleet(source: str | os.PathLike | Sequence[Unit], *, model: str = DEFAUL
     if unknown:
         raise TypeError(f"fit_fleet() got unexpected keyword arguments {unknown}; the fit "
                         f"options are {', '.join(FIT_OPTIONS)}")
-    units = list(source) if not isinstance(source, (str, os.PathLike)) else discover(source)
-    if not units:
-        raise InputError(str(source), "fleet", "holds no units", "give at least one cylinder")
-    for flag, value in (("--lanes", lanes), ("--chunk", chunk)):
-        if value < 1:
-            raise InputError(None, f"{flag} {value}", "must be at least 1", "give 1 or more")
-    if workers is not None and workers < 1:
-        raise InputError(None, f"--workers {workers}", "must be at least 1", "give 1 or more")
+    units = _units(source)
+    _check_counts(lanes=lanes, chunk=chunk, workers=workers)
     settings = Settings(model=model, fix=dict(fix or {}), fit=dict(fit_options),
                         reading=dict(reading or {}), lanes=lanes, diagnose=diagnose)
     text = settings.text()
@@ -197,17 +191,46 @@ def fit_fleet(source: str | os.PathLike | Sequence[Unit], *, model: str = DEFAUL
 
     if progress is not None:
         progress(finished, total)
-    chunks = _chunks(todo, chunk)
-    if chunks:
-        if scheduler is None and (workers or default_workers()) == 1:
-            _run_local(chunks, settings, done)
-        else:
-            # a task's key names its units (Dask keeps one result per key)
-            first = {u: h for u, h in zip(units, hashes)}
-            keys = [f"fitstiff-fleet-{first[c[0]][:20]}-{len(c)}" for c in chunks]
-            _run_dask(chunks, settings, done, keys=keys, workers=workers or default_workers(),
-                      scheduler=scheduler)
-    table = pd.DataFrame([rows[(u.cylinder, u.run)] for u in units])
+    _run(_chunks(todo, chunk), settings, done, hashes=dict(zip(units, hashes)), workers=workers,
+         scheduler=scheduler)
+    return _with_population(pd.DataFrame([rows[(u.cylinder, u.run)] for u in units]), q)
+
+
+def _units(source: str | os.PathLike | Sequence[Unit]) -> list[Unit]:
+    """The units of ``source`` (discovered in a folder or manifest); an InputError if none."""
+    units = list(source) if not isinstance(source, (str, os.PathLike)) else discover(source)
+    if not units:
+        raise InputError(str(source), "fleet", "holds no units", "give at least one cylinder")
+    return units
+
+
+def _check_counts(*, lanes: int, chunk: int, workers: int | None) -> None:
+    """An InputError for a count below 1."""
+    for flag, value in (("--lanes", lanes), ("--chunk", chunk)):
+        if value < 1:
+            raise InputError(None, f"{flag} {value}", "must be at least 1", "give 1 or more")
+    if workers is not None and workers < 1:
+        raise InputError(None, f"--workers {workers}", "must be at least 1", "give 1 or more")
+
+
+def _run(chunks: list[list[Unit]], settings: Settings, done: Callable[[list[dict]], None], *,
+         hashes: Mapping[Unit, str], workers: int | None, scheduler: str | None) -> None:
+    """The chunks fitted here (one worker, no scheduler) or on Dask; ``done`` with each
+    chunk's rows as it finishes."""
+    if not chunks:
+        return
+    if scheduler is None and (workers or default_workers()) == 1:
+        _run_local(chunks, settings, done)
+    else:
+        # a task's key names its units (Dask keeps one result per key)
+        keys = [f"fitstiff-fleet-{hashes[c[0]][:20]}-{len(c)}" for c in chunks]
+        _run_dask(chunks, settings, done, keys=keys, workers=workers or default_workers(),
+                  scheduler=scheduler)
+
+
+def _with_population(table: pd.DataFrame, q: float) -> pd.DataFrame:
+    """The fleet's rows sorted by cylinder and run, the base columns first, with the
+    population's flags and ``attrs["population"]``."""
     table = table.sort_values(["cylinder", "run_index"], kind="stable").reset_index(drop=True)
     first = [c for c in BASE_COLUMNS if c in table]
     table = table[first + [c for c in table.columns if c not in first]]

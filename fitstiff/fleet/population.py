@@ -36,6 +36,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Mapping, Sequence
+from typing import NamedTuple
 
 import numpy as np
 import pandas as pd
@@ -205,10 +206,36 @@ def population(table: pd.DataFrame, *, q: float = DEFAULT_Q,
     if not 0 < q < 1:
         raise ValueError(f"q={q} must lie strictly between 0 and 1")
     table = table.sort_values(["cylinder", "run_index"], kind="stable").reset_index(drop=True)
+    per_quantity = _quantities(table, quantities)
+    outliers = _outliers(per_quantity, q)
+    drifts = _drifts(per_quantity, q)
+    summaries = {name: _summary(d, outliers.fits[name], outliers.excluded[name])
+                 for name, d in per_quantity.items()}
+    return Population(q=q, quantities=summaries, outliers=_ranked(outliers.rows, "size"),
+                      drifts=_ranked(drifts, "per_run"),
+                      flags=_flags(table, outliers.rows, drifts))
+
+
+class _Quantity(NamedTuple):
+    """One quantity's data on the log scale, per cylinder with a usable run."""
+
+    names: list[str]         # the cylinders
+    ybar: np.ndarray         # each one's mean over its runs
+    v: np.ndarray            # the variance of that mean: (mean s^2 + omega^2) / runs
+    omega2: float | None     # the run-to-run variance (None: no cylinder has two runs)
+    groups: dict             # per cylinder (run indices, y, s, rows of the table)
+
+
+#: per cylinder its flags of one kind: (quantity, size or drift per run, q-value)
+_Rows = dict[str, list[tuple[str, float, float]]]
+
+
+def _quantities(table: pd.DataFrame, quantities: Sequence[str]) -> dict[str, _Quantity]:
+    """The quantities of the (sorted) table that at least two cylinders have estimates of."""
     ok = (table["error"].fillna("") == "") & table["converged"].astype(bool) \
         & table["identifiable"].astype(bool)
     cylinders = list(dict.fromkeys(table["cylinder"]))
-    per_quantity: dict[str, dict] = {}
+    per_quantity: dict[str, _Quantity] = {}
     for name in quantities:
         if name not in table:
             continue
@@ -229,46 +256,77 @@ def population(table: pd.DataFrame, *, q: float = DEFAULT_Q,
         ybar = np.array([groups[c][1].mean() for c in names])
         v = np.array([(np.mean(groups[c][2] ** 2) + (omega2 or 0.0)) / groups[c][1].size
                       for c in names])
-        per_quantity[name] = {"names": names, "ybar": ybar, "v": v, "omega2": omega2,
-                              "groups": groups}
-    # outliers: refit without the flagged cylinders until the flags settle
-    excluded = {name: np.zeros(len(d["names"]), bool) for name, d in per_quantity.items()}
+        per_quantity[name] = _Quantity(names, ybar, v, omega2, groups)
+    return per_quantity
+
+
+class _Outliers(NamedTuple):
+    """The outcome of the outlier rounds."""
+
+    fits: dict[str, dict[str, float]]     # per quantity the population of the last round
+    excluded: dict[str, np.ndarray]       # per quantity the cylinders left out of it
+    rows: _Rows                           # per flagged cylinder (quantity, size, q-value)
+
+
+class _Round(NamedTuple):
+    """One round of the outlier test, over every quantity."""
+
+    fits: dict[str, dict[str, float]]     # per quantity its population
+    pvals: list[np.ndarray]               # per quantity each cylinder's tail probability
+    index: list[tuple[str, int]]          # (quantity, cylinder position) of each p-value
+
+
+def _outliers(per_quantity: Mapping[str, _Quantity], q: float) -> _Outliers:
+    """Refit without the flagged cylinders until the flags settle (module docstring)."""
+    excluded = {name: np.zeros(len(d.names), bool) for name, d in per_quantity.items()}
     for round_ in range(_MAX_ROUNDS):
-        fits, pvals, index = {}, [], []
-        for name, d in per_quantity.items():
-            keep = ~excluded[name]
-            if keep.sum() < 2:
-                keep = np.ones_like(keep)
-            n = len(d["names"])
-            if n < _ROBUST_MIN:        # every round: each against the others not flagged
-                fits[name] = _random_effects(d["ybar"][keep], d["v"][keep])
-                pvals.append(_leave_one_out(d["ybar"], d["v"], excluded[name]))
-            else:
-                fits[name] = fit = (_robust(d["ybar"], d["v"]) if round_ == 0
-                                    else _random_effects(d["ybar"][keep], d["v"][keep]))
-                tau2 = 0.0 if math.isnan(fit["tau"]) else fit["tau"] ** 2
-                z = (d["ybar"] - fit["mu"]) / np.sqrt(tau2 + d["v"])
-                pvals.append(2 * stats.norm.sf(np.abs(z)) if n >= _MIN_TESTED
-                             else np.ones(n))
-            index += [(name, i) for i in range(len(d["names"]))]
+        fits, pvals, index = _round(per_quantity, excluded, round_)
         qvals = benjamini_hochberg(np.concatenate(pvals)) if pvals else np.zeros(0)
-        flagged = {name: np.zeros(len(d["names"]), bool) for name, d in per_quantity.items()}
+        flagged = {name: np.zeros(len(d.names), bool) for name, d in per_quantity.items()}
         for (name, i), qv in zip(index, qvals):
             flagged[name][i] = qv <= q
         if round_ and all(np.array_equal(flagged[n], excluded[n]) for n in per_quantity):
             break           # (after one ML round at least: the population reported is ML's)
         excluded = flagged
-    outlier_rows: dict[str, list[tuple[str, float, float]]] = {}
+    rows: _Rows = {}
     for (name, i), qv in zip(index, qvals):
         if qv <= q:
             d, fit = per_quantity[name], fits[name]
-            size = math.exp(d["ybar"][i] - fit["mu"]) - 1.0
-            outlier_rows.setdefault(d["names"][i], []).append((name, size, float(qv)))
-    # drift: a weighted slope per cylinder with enough runs
+            size = math.exp(d.ybar[i] - fit["mu"]) - 1.0
+            rows.setdefault(d.names[i], []).append((name, size, float(qv)))
+    return _Outliers(fits, excluded, rows)
+
+
+def _round(per_quantity: Mapping[str, _Quantity], excluded: Mapping[str, np.ndarray],
+           round_: int) -> _Round:
+    """The populations without the ``excluded`` cylinders, and every cylinder's p-value."""
+    fits, pvals, index = {}, [], []
+    for name, d in per_quantity.items():
+        keep = ~excluded[name]
+        if keep.sum() < 2:
+            keep = np.ones_like(keep)
+        n = len(d.names)
+        if n < _ROBUST_MIN:        # every round: each against the others not flagged
+            fits[name] = _random_effects(d.ybar[keep], d.v[keep])
+            pvals.append(_leave_one_out(d.ybar, d.v, excluded[name]))
+        else:
+            fits[name] = fit = (_robust(d.ybar, d.v) if round_ == 0
+                                else _random_effects(d.ybar[keep], d.v[keep]))
+            tau2 = 0.0 if math.isnan(fit["tau"]) else fit["tau"] ** 2
+            z = (d.ybar - fit["mu"]) / np.sqrt(tau2 + d.v)
+            pvals.append(2 * stats.norm.sf(np.abs(z)) if n >= _MIN_TESTED
+                         else np.ones(n))
+        index += [(name, i) for i in range(len(d.names))]
+    return _Round(fits, pvals, index)
+
+
+def _drifts(per_quantity: Mapping[str, _Quantity], q: float) -> _Rows:
+    """Per drifting cylinder (quantity, drift per run, q-value): a weighted slope per
+    cylinder with enough runs (module docstring)."""
     tests = []
     for name, d in per_quantity.items():
-        omega2 = d["omega2"] or 0.0
-        for c, (runs, y, s, _) in d["groups"].items():
+        omega2 = d.omega2 or 0.0
+        for c, (runs, y, s, _) in d.groups.items():
             if y.size < MIN_DRIFT_RUNS or np.ptp(runs) == 0:
                 continue
             w = 1.0 / (s**2 + omega2)
@@ -278,24 +336,29 @@ def population(table: pd.DataFrame, *, q: float = DEFAULT_Q,
             z = b * math.sqrt(sxx)
             tests.append((c, name, b, 2 * stats.norm.sf(abs(z))))
     drift_q = benjamini_hochberg(np.array([t[3] for t in tests])) if tests else np.zeros(0)
-    drift_rows: dict[str, list[tuple[str, float, float]]] = {}
+    drift_rows: _Rows = {}
     for (c, name, b, _), qv in zip(tests, drift_q):
         if qv <= q:
             drift_rows.setdefault(c, []).append((name, math.expm1(b), float(qv)))
+    return drift_rows
 
-    quantities_out = {}
-    for name, d in per_quantity.items():
-        fit = fits[name]
-        mu, se = fit["mu"], fit["mu_se"]
-        quantities_out[name] = {
-            "cylinders": len(d["names"]), "used": int((~excluded[name]).sum()),
-            "mean": math.exp(mu), "mean_interval_95": [math.exp(mu - _Z95 * se),
-                                                       math.exp(mu + _Z95 * se)],
-            "spread_sd_log": _finite(fit["tau"]),
-            "spread_interval_95": [_finite(fit["tau_low"]), _finite(fit["tau_high"])],
-            "run_to_run_sd_log": (None if d["omega2"] is None else math.sqrt(d["omega2"])),
-            "note": "spreads are standard deviations of the natural log: 0.08 is a spread "
-                    "of about 8 %"}
+
+def _summary(d: _Quantity, fit: Mapping[str, float], excluded: np.ndarray) -> dict:
+    """One quantity's entry of ``population.json``."""
+    mu, se = fit["mu"], fit["mu_se"]
+    return {
+        "cylinders": len(d.names), "used": int((~excluded).sum()),
+        "mean": math.exp(mu), "mean_interval_95": [math.exp(mu - _Z95 * se),
+                                                   math.exp(mu + _Z95 * se)],
+        "spread_sd_log": _finite(fit["tau"]),
+        "spread_interval_95": [_finite(fit["tau_low"]), _finite(fit["tau_high"])],
+        "run_to_run_sd_log": (None if d.omega2 is None else math.sqrt(d.omega2)),
+        "note": "spreads are standard deviations of the natural log: 0.08 is a spread "
+                "of about 8 %"}
+
+
+def _flags(table: pd.DataFrame, outlier_rows: _Rows, drift_rows: _Rows) -> pd.DataFrame:
+    """The flag columns of every row of the (sorted) table (:class:`Population`)."""
     flags = pd.DataFrame({"cylinder": table["cylinder"], "run": table["run"]})
     flags["outlier"] = flags["cylinder"].map(lambda c: c in outlier_rows)
     flags["outlier_quantities"] = flags["cylinder"].map(
@@ -312,18 +375,16 @@ def population(table: pd.DataFrame, *, q: float = DEFAULT_Q,
         lambda c: strongest[c][1] if c in strongest else math.nan)
     flags["drift_q"] = flags["cylinder"].map(
         lambda c: strongest[c][2] if c in strongest else math.nan)
-    outliers = tuple({"cylinder": c, "quantities": [n for n, _, _ in items],
-                      "size": {n: sz for n, sz, _ in items},
-                      "q_value": min(qv for _, _, qv in items)}
-                     for c, items in sorted(outlier_rows.items(),
-                                            key=lambda kv: min(t[2] for t in kv[1])))
-    drifts = tuple({"cylinder": c, "quantities": [n for n, _, _ in items],
-                    "per_run": {n: b for n, b, _ in items},
-                    "q_value": min(qv for _, _, qv in items)}
-                   for c, items in sorted(drift_rows.items(),
-                                          key=lambda kv: min(t[2] for t in kv[1])))
-    return Population(q=q, quantities=quantities_out, outliers=outliers, drifts=drifts,
-                      flags=flags)
+    return flags
+
+
+def _ranked(rows: _Rows, key: str) -> tuple[dict[str, object], ...]:
+    """The flagged cylinders of one kind, most significant first, as in ``population.json``
+    (``key``: ``size`` for the outliers, ``per_run`` for the drifts)."""
+    return tuple({"cylinder": c, "quantities": [n for n, _, _ in items],
+                  key: {n: value for n, value, _ in items},
+                  "q_value": min(qv for _, _, qv in items)}
+                 for c, items in sorted(rows.items(), key=lambda kv: min(t[2] for t in kv[1])))
 
 
 def _finite(v: float) -> float | None:

@@ -29,8 +29,9 @@ import numpy as np
 
 from fitstiff.signal.noise import marginal_scale
 
-__all__ = ["chatters", "denoise_displacement", "reversal_samples", "segment_velocity", "smooth_acceleration",
-           "smooth_force", "turning_points"]
+__all__ = ["chatters", "curvature_noise", "denoise_displacement", "quadratic_curvature",
+           "reversal_samples", "segment_velocity", "smooth_acceleration", "smooth_force",
+           "turning_points", "value_noise"]
 
 _SEARCH = 3   # samples either side of a reversal index searched for the raw extremum
 
@@ -300,15 +301,15 @@ def smooth_acceleration(displacement: np.ndarray, time: np.ndarray, *,
     if n < 5:
         return np.zeros(n)
     dt = float(np.median(np.diff(t)))
-    pilot = _quadratic_curvature(x, t, min(_ACCEL_PILOT, (n - 1) // 2))
+    pilot = quadratic_curvature(x, t, min(_ACCEL_PILOT, (n - 1) // 2))
     typical = float(np.sqrt(np.mean(pilot**2)))
     widest = 2
     while (widest < min(50, (n - 1) // 2)
-           and _curvature_noise(widest, noise, dt) > _ACCEL_NOISE * typical):
+           and curvature_noise(widest, noise, dt) > _ACCEL_NOISE * typical):
         widest += 1
     widths = [m for m in _ACCEL_WIDTHS if m < widest] + [widest]
     return _intersect(zip(_quadratic_curvatures(x, t, widths),
-                          (_ACCEL_GAMMA * _curvature_noise(m, noise, dt) for m in widths)),
+                          (_ACCEL_GAMMA * curvature_noise(m, noise, dt) for m in widths)),
                       np.zeros(n))
 
 
@@ -326,22 +327,25 @@ def _intersect(estimates, out: np.ndarray) -> np.ndarray:
     return out
 
 
-def _curvature_noise(m: int, noise: float, dt: float) -> float:
+def curvature_noise(m: int, noise: float, dt: float) -> float:
     """Standard deviation of ``2 c2`` from a parabola through ``2 m + 1`` evenly spaced
-    samples with white noise ``noise``."""
+    samples (spacing ``dt``) with white noise ``noise``: the noise of
+    :func:`quadratic_curvature` of half-width ``m``, which sets the confidence intervals of
+    :func:`smooth_acceleration`'s window rule."""
     k = np.arange(-m, m + 1, dtype=float)
     s0, s2, s4 = k.size, np.sum(k**2), np.sum(k**4)
     return 2.0 * noise * float(np.sqrt(s0 / (s0 * s4 - s2**2))) / dt**2
 
 
-def _quadratic_curvature(x: np.ndarray, t: np.ndarray, m: int) -> np.ndarray:
+def quadratic_curvature(x: np.ndarray, t: np.ndarray, m: int) -> np.ndarray:
     """``2 c2`` of the least-squares parabola through samples ``i - m ... i + m`` (clipped at
-    the ends), in each window's own times relative to sample ``i``."""
+    the ends), in each window's own times relative to sample ``i``: the acceleration from one
+    fixed window (:func:`smooth_acceleration` chooses the window per sample)."""
     return next(_quadratic_curvatures(x, t, (m,)))
 
 
 def _quadratic_curvatures(x: np.ndarray, t: np.ndarray, widths):
-    """:func:`_quadratic_curvature` for each of the increasing half-widths ``widths`` in
+    """:func:`quadratic_curvature` for each of the increasing half-widths ``widths`` in
     turn."""
     scale = float(np.median(np.diff(t))) or 1.0
     for coef in _local_quadratics(x, t, widths):
@@ -413,13 +417,14 @@ def smooth_force(force: np.ndarray, time: np.ndarray | None, *, noise: float) ->
         return y.copy()
     t = np.arange(n, dtype=float) if time is None else np.asarray(time, dtype=float)
     widths = [m for m in _VALUE_WIDTHS if m <= (n - 1) // 2]
-    return _intersect(((y + coef[:, 0], _VALUE_GAMMA * _value_noise(m, noise))
+    return _intersect(((y + coef[:, 0], _VALUE_GAMMA * value_noise(m, noise))
                        for m, coef in zip(widths, _local_quadratics(y, t, widths))), y.copy())
 
 
-def _value_noise(m: int, noise: float) -> float:
+def value_noise(m: int, noise: float) -> float:
     """Standard deviation of ``c0`` from a parabola through ``2 m + 1`` evenly spaced samples
-    with white noise ``noise``."""
+    with white noise ``noise``: the noise of the fitted value of half-width ``m``, which sets
+    the confidence intervals of :func:`smooth_force`'s window rule."""
     k = np.arange(-m, m + 1, dtype=float)
     s0, s2, s4 = k.size, np.sum(k**2), np.sum(k**4)
     return noise * float(np.sqrt(s4 / (s0 * s4 - s2**2)))

@@ -30,7 +30,8 @@ import math
 
 import numpy as np
 
-__all__ = ["NoiseFloor", "marginal_scale", "noise_floor", "pooled_noise_floor"]
+__all__ = ["NoiseFloor", "RHO_GRID", "ar1_shape", "marginal_scale", "noise_floor",
+           "pooled_noise_floor", "robust_var"]
 
 _MAD = 1.4826
 _RHO_MIN, _RHO_MAX = -0.9, 0.95
@@ -64,22 +65,26 @@ def marginal_scale(rho: float) -> float:
     return math.sqrt(3.0 / ((1.0 - rho) * (3.0 - rho)))
 
 
-def _robust_var(d: np.ndarray) -> float:
+def robust_var(d: np.ndarray) -> float:
+    """Gaussian-equivalent variance of ``d`` from its median absolute deviation,
+    ``(1.4826 MAD)**2`` (0 for no values): the ``D_k`` that :func:`noise_floor` fits."""
     if d.size == 0:
         return 0.0
     return float((_MAD * np.median(np.abs(d - np.median(d)))) ** 2)
 
 
-def _shape(rho: float, k: np.ndarray) -> np.ndarray:
-    """``D_k / s**2`` for AR(1) noise."""
+def ar1_shape(rho: float, k: np.ndarray) -> np.ndarray:
+    """``D_k / s**2`` for AR(1) noise: ``2 (1 - rho**k)(3 - rho**k)``, the variance of its
+    lag-``k`` second differences per unit marginal variance (see the module docstring)."""
     r = rho ** k
     return 2.0 * (1.0 - r) * (3.0 - r)
 
 
 _LAGS = np.arange(1, 5)
-_GRID = np.linspace(_RHO_MIN, _RHO_MAX, 371)
-#: ``D_k / s**2`` of AR(1) noise (:func:`_shape`) at every grid point (rows) and lag (columns)
-_SHAPES = _shape(_GRID[:, None], _LAGS[None, :])
+#: the lag-1 correlations :func:`noise_floor` tries (the first of equal costs wins)
+RHO_GRID = np.linspace(_RHO_MIN, _RHO_MAX, 371)
+#: ``D_k / s**2`` of AR(1) noise (:func:`ar1_shape`) at every grid point (rows) and lag (columns)
+_SHAPES = ar1_shape(RHO_GRID[:, None], _LAGS[None, :])
 
 
 def noise_floor(values: np.ndarray, *, mask: np.ndarray | None = None) -> NoiseFloor:
@@ -98,7 +103,7 @@ def noise_floor(values: np.ndarray, *, mask: np.ndarray | None = None) -> NoiseF
     for j, k in enumerate(_LAGS):
         second = f[2 * k:] - 2.0 * f[k:-k] + f[:-2 * k]
         ok = keep[2 * k:] & keep[k:-k] & keep[:-2 * k]
-        d[j] = _robust_var(second[ok])
+        d[j] = robust_var(second[ok])
     if not np.all(d > 0):
         return NoiseFloor(0.0, 0.0)
     curvature = (_LAGS.astype(float) ** 4) / d          # relative to each D_k
@@ -108,7 +113,7 @@ def noise_floor(values: np.ndarray, *, mask: np.ndarray | None = None) -> NoiseF
     if not np.isfinite(cost).any():
         return NoiseFloor(0.0, 0.0)
     best = int(np.argmin(cost))          # the first of equal costs, as a scan of the grid
-    rho, s2 = float(_GRID[best]), float(s2[best])
+    rho, s2 = float(RHO_GRID[best]), float(s2[best])
     return NoiseFloor(math.sqrt(s2), rho, capped=rho >= _RHO_MAX - 1e-9)
 
 
