@@ -8,11 +8,12 @@ import re
 import subprocess
 import sys
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 from conftest import CHROMIUM, check_renders_in_chromium, page_width_in_chromium
 
-from fitstiff._jax import jax, jnp
 from fitstiff.errors import InputError
 from fitstiff.io.log import Rig
 from fitstiff.physics.model import build_model
@@ -397,19 +398,18 @@ def test_a_detectable_size_beyond_the_parameters_range_is_not_testable():
     """Issue 31: "Stribeck ratio >= 50.9" (the term ends at 5) and "pressure_friction
     testable >= 9.6 /bar" on one pressure meant nothing: beyond the range, the candidate is
     not testable on these logs, with what to record instead."""
-    import importlib
     from types import SimpleNamespace
 
+    from fitstiff.diagnosis.screen import detectability
     from fitstiff.physics.terms import TERMS
 
-    module = importlib.import_module("fitstiff.diagnosis.diagnose")
     ratio = next(p for p in TERMS["stribeck"]().params() if p.field == "stribeck_ratio")
     score = SimpleNamespace(effect="stribeck", testable=True, param=ratio, detectable=49.9,
                             parameter="stribeck_ratio", reason=None)
-    far = module._detectability(score)
+    far = detectability(score)
     assert far["testable"] is False and "beyond the term's range (4)" in far["reason"]
     assert far["record"] == TERMS["stribeck"].excitation
-    near = module._detectability(SimpleNamespace(**{**vars(score), "detectable": 0.5}))
+    near = detectability(SimpleNamespace(**{**vars(score), "detectable": 0.5}))
     assert near == {"testable": True, "parameter": "stribeck_ratio", "size": 0.5, "unit": "-",
                     "power": 0.8}
 
@@ -438,12 +438,10 @@ def test_an_aged_junction_after_pauses_is_named_dwell_stiction(junction_logs):
 def test_an_accepted_effect_the_others_make_redundant_is_dropped(junction_logs):
     # greedy acceptance can leave an earlier effect with nothing of its own once a later one
     # is in; the backward check judges each as if it were added last
-    import importlib
-
+    from fitstiff.diagnosis.prune import prune
     from fitstiff.diagnosis.select import fold_starts, folds_for, held_out
     from fitstiff.diagnosis.supermodel import SuperProblem
 
-    diag = importlib.import_module("fitstiff.diagnosis.diagnose")
     sp = SuperProblem(junction_logs, "chamber+dahl", ["viscous", "dwell_stiction"])
     folds = folds_for(sp)
     base = ["chamber", "dahl"]
@@ -454,16 +452,15 @@ def test_an_accepted_effect_the_others_make_redundant_is_dropped(junction_logs):
     theta, hold = sp.start()
     weights = sp.entry_weights()
     noise = 0.2
-    _, _, _, active, dropped = diag._prune(sp, folds, [("viscous",), ("dwell_stiction",)],
-                                           current, theta, hold, both, weights, noise=noise,
-                                           min_shrink=0.3)
-    assert list(dropped) == [("viscous",)]
-    assert active == base + ["dwell_stiction"]
-    assert "dropped" in dropped[("viscous",)]
+    pruned = prune(sp, folds, [("viscous",), ("dwell_stiction",)], current, theta, hold, both,
+                   weights, noise=noise, min_shrink=0.3)
+    assert list(pruned.dropped) == [("viscous",)]
+    assert pruned.active == base + ["dwell_stiction"]
+    assert "dropped" in pruned.dropped[("viscous",)]
     # a unit that carries its share stays, alone it is never judged
-    kept = diag._prune(sp, folds, [("dwell_stiction",)], current, theta, hold, both,
-                       weights, noise=noise, min_shrink=0.3)
-    assert kept[4] == {}
+    kept = prune(sp, folds, [("dwell_stiction",)], current, theta, hold, both,
+                 weights, noise=noise, min_shrink=0.3)
+    assert kept.dropped == {}
 
 
 @pytest.mark.slow

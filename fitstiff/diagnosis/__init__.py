@@ -5,8 +5,13 @@ alone): :mod:`~fitstiff.diagnosis.supermodel` (the baseline and every candidate 
 compiled model with run-time masks), :mod:`~fitstiff.diagnosis.gap` (where: held-out residuals
 by region), :mod:`~fitstiff.diagnosis.screen` (which: score statistics and detectability),
 :mod:`~fitstiff.diagnosis.select` (how far: held-out folds and the acceptance rule),
+:mod:`~fitstiff.diagnosis.prune` (the backward check of the accepted effects),
 :mod:`~fitstiff.diagnosis.structure` (what the unexplained rest follows),
 :mod:`~fitstiff.diagnosis.diagnose` (the whole) and :mod:`~fitstiff.diagnosis.result`.
+The underscore modules are their parts: ``_rounds`` (the greedy search), ``_refit`` (a
+candidate's held-out refit), ``_choice`` (ties and pairs), ``_candidates`` (the candidate
+records), ``_verdict`` (the words), ``_structure_forms``, ``_structure_basis`` and
+``_structure_record`` (the descriptions' vocabulary, fit and record).
 """
 
 from fitstiff.diagnosis.diagnose import ALPHA, MIN_SHRINK, diagnose

@@ -39,9 +39,11 @@ from scipy import stats
 
 from fitstiff.diagnosis.supermodel import SuperProblem
 from fitstiff.physics.params import Param
+from fitstiff.physics.terms import TERMS
 from fitstiff.signal.noise import NoiseFloor, noise_floor
 
-__all__ = ["Score", "screen", "collinear_groups", "SHAPE_GRIDS", "POWER", "COLLINEAR_TIE"]
+__all__ = ["Score", "screen", "collinear_groups", "detectability", "SHAPE_GRIDS", "POWER",
+           "COLLINEAR_TIE"]
 
 POWER = 0.8
 #: shape parameters scanned by the screen (SI); the first value starts the model
@@ -206,6 +208,30 @@ def collinear_groups(scores: Sequence[Score], *, threshold: float = COLLINEAR_TI
         else:
             groups.append([s])
     return [g for g in groups if len(g) > 1]
+
+
+def detectability(s: Score) -> dict[str, object]:
+    """The DESIGN §5 ``detectability`` entry of one candidate's score (``Diagnosis.detectability``,
+    from the first screen): the size the logs detect at 80 % power, or ``testable: false`` with
+    why and what to record. A size beyond the parameter's physical range (a Stribeck ratio of 51
+    where the term ends at 5, a pressure coefficient of 9.6 /bar on one pressure) is not
+    testable on these logs either."""
+    term = TERMS[s.effect]
+    if not s.testable:
+        return {"testable": False, "parameter": s.parameter, "reason": s.reason,
+                "record": term.excitation}
+    null = s.param.null if s.param.null is not None else 0.0
+    reach = max(s.param.upper - null, null - s.param.lower)
+    size = s.param.to_display(s.detectable)
+    if math.isfinite(reach) and s.detectable > reach:
+        unit = "" if s.param.unit == "-" else f" {s.param.unit}"
+        return {"testable": False, "parameter": s.parameter,
+                "reason": f"not detectable on these logs: {s.parameter} would have to move "
+                          f"{size:.3g}{unit} from its null, beyond the term's range "
+                          f"({s.param.to_display(reach):.3g}{unit})",
+                "record": term.excitation}
+    return {"testable": True, "parameter": s.parameter, "size": size,
+            "unit": s.param.unit, "power": 0.8}
 
 
 def chi2_logsf(x: float, dof: int) -> float:

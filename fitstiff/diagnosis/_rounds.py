@@ -1,0 +1,225 @@
+"""The greedy search of :func:`~fitstiff.diagnosis.diagnose.diagnose` (DESIGN §6, steps 3-4).
+
+Each round screens the candidates not yet accepted on the current model
+(:func:`~fitstiff.diagnosis.screen.screen`), refits the significant ones on held-out data in
+batches of :data:`~fitstiff.diagnosis._choice.MAX_REFITS` (:mod:`fitstiff.diagnosis._refit`),
+records every candidate (:mod:`fitstiff.diagnosis._candidates`) and accepts the best that
+passes (:func:`~fitstiff.diagnosis._choice.choose`), or two together when none passes alone
+(:func:`~fitstiff.diagnosis._choice.pair`). After the last round, accepted effects that the
+others made redundant are dropped (:func:`~fitstiff.diagnosis.prune.prune`).
+
+:class:`Setting` holds what the rounds do not change, :class:`Search` what they update.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import time
+from collections import Counter
+from collections.abc import Sequence
+from typing import NamedTuple
+
+import numpy as np
+
+from fitstiff.diagnosis._candidates import (improved_regions, parameter_entries, refitted,
+                                            screened)
+from fitstiff.diagnosis._choice import MAX_REFITS, choose, pair
+from fitstiff.diagnosis._refit import FoldStarts, Tried, fold_fits, judge
+from fitstiff.diagnosis.prune import prune
+from fitstiff.diagnosis.result import Candidate
+from fitstiff.diagnosis.screen import Score, screen
+from fitstiff.diagnosis.select import MIN_GAIN, Fold, FoldFit, HeldOut, held_out
+from fitstiff.diagnosis.supermodel import SuperProblem
+from fitstiff.signal.noise import NoiseFloor
+
+__all__ = ["MAX_ACCEPT", "Setting", "Search", "phase", "run_rounds", "prune_accepted"]
+
+#: most rounds of the search (each accepts one effect, or a pair)
+MAX_ACCEPT = 4
+
+
+@contextlib.contextmanager
+def phase(spent: Counter, name: str):
+    """Add the wall time of the block to ``spent[name]``."""
+    start = time.perf_counter()
+    try:
+        yield
+    finally:
+        spent[name] += time.perf_counter() - start
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Setting:
+    """What the rounds do not change: the super-model and its folds, the candidates
+    (``names``), each log's noise floor and the pooled one, the samples that count
+    (``masks``), the full-data run-time ``weights``, the rule's ``alpha`` and ``min_shrink``,
+    and ``spent``: seconds per phase of the selection (``timing_s``)."""
+
+    sp: SuperProblem
+    folds: Sequence[Fold]
+    names: Sequence[str]
+    noise: Sequence[NoiseFloor]
+    noise_pooled: float
+    masks: Sequence[np.ndarray]
+    weights: np.ndarray
+    alpha: float
+    min_shrink: float
+    spent: Counter
+
+
+@dataclasses.dataclass(eq=False)
+class Search:
+    """The state the rounds update: the full-data fit of the current model (``theta``,
+    ``hold``) and its terms (``active``), its held-out figure (``current``) and each fold's
+    training fit of it (``fits``: where the next refits start); every candidate's first screen
+    (``first``) and record (``decided``), the accepted effects in order, and the last round's
+    screen (``scores``)."""
+
+    theta: np.ndarray
+    hold: np.ndarray
+    active: list[str]
+    current: HeldOut
+    fits: list[FoldFit]
+    first: dict[str, Score] = dataclasses.field(default_factory=dict)
+    decided: dict[str, Candidate] = dataclasses.field(default_factory=dict)
+    accepted: list[str] = dataclasses.field(default_factory=list)
+    scores: list[Score] = dataclasses.field(default_factory=list)
+
+
+class _Step(NamedTuple):
+    """What a round accepts: the effects (one, or a pair) and their held-out refit."""
+
+    effects: list[str]
+    heldout: HeldOut
+
+
+def run_rounds(st: Setting, s: Search) -> None:
+    """Up to :data:`MAX_ACCEPT` rounds, until no candidate is left or none passes."""
+    for round_ in range(1, MAX_ACCEPT + 1):
+        if not _round(st, s, round_):
+            break
+
+
+def _round(st: Setting, s: Search, round_: int) -> bool:
+    """One round of the search; False when it ends the search."""
+    remaining = [c for c in st.names if c not in s.accepted]
+    if not remaining:
+        return False
+    with phase(st.spent, "screens"):
+        s.scores, s.hold = screen(st.sp, s.theta, s.hold, active=s.active,
+                                  candidates=remaining, noise=st.noise, weights=st.weights,
+                                  alpha=st.alpha, min_gain=MIN_GAIN)
+    for score in s.scores:
+        s.first.setdefault(score.effect, score)
+    starts = FoldStarts(st.sp, st.folds, s.fits, s.active, noise=st.noise, alpha=st.alpha)
+    tried = _refits(st, s, starts)
+    _record(st, s, tried, round_)
+    passing = [v for v in tried.values() if v.passes]
+    step = _accept_one(st, s, passing) if passing else _accept_pair(st, s, tried, starts)
+    if step is None:
+        return False
+    _take(st, s, step)
+    return True
+
+
+def _refits(st: Setting, s: Search, starts: FoldStarts) -> dict[str, Tried]:
+    """Held-out refits of the round's significant candidates, judged by the rule: in batches
+    of ``MAX_REFITS``, strongest score first, the next batch only when none of the previous
+    passed, so no significant candidate stays untried."""
+    m = len(st.names)
+    promising = sorted((x for x in s.scores if x.testable and x.p_value * m < st.alpha),
+                       key=lambda x: x.log_p)
+    tried: dict[str, Tried] = {}
+    for k, score in enumerate(promising):
+        if k and k % MAX_REFITS == 0 and any(v.passes for v in tried.values()):
+            break
+        entries = st.sp.elements(score.effect, fitted=True)
+        with phase(st.spent, "refits"):
+            fold_start = starts.of(score.effect, batch=[t.effect for t in
+                                                        promising[k:k + MAX_REFITS]])
+            ho = held_out(st.sp, st.folds, fold_start, s.active, extra=entries)
+        tried[score.effect] = judge(st.sp, score, ho, fold_start, current=s.current,
+                                    noise=st.noise_pooled, min_shrink=st.min_shrink)
+    return tried
+
+
+def _record(st: Setting, s: Search, tried: dict[str, Tried], round_: int) -> None:
+    """Every screened candidate's record of this round; a tie of an earlier round stays on
+    the record (the loser is screened again)."""
+    tied = {e: c.tied_with for e, c in s.decided.items() if c.tied_with}
+    for score in s.scores:
+        if score.effect in tried:
+            s.decided[score.effect] = refitted(
+                st.sp, score, tried[score.effect], current=s.current, noise=st.noise,
+                masks=st.masks, round_=round_, tied_with=tied.get(score.effect, ""))
+        else:
+            s.decided[score.effect] = screened(
+                st.sp, score, round_=round_, alpha=st.alpha, m=len(st.names),
+                tied_with=tied.get(score.effect, ""))
+
+
+def _accept_one(st: Setting, s: Search, passing: list[Tried]) -> _Step:
+    """The passing candidate to accept (:func:`~fitstiff.diagnosis._choice.choose`); the
+    full-data fit goes on from its fit, and each tied candidate's record says why it lost."""
+    choice = choose(st.sp, passing, s.theta, s.hold, s.active, st.weights, st.noise_pooled)
+    s.theta, s.hold = choice.theta, choice.hold
+    for effect, why in choice.losers.items():
+        s.decided[effect] = dataclasses.replace(s.decided[effect], why=why,
+                                                tied_with=choice.chosen.effect)
+    return _Step([choice.chosen.effect], choice.chosen.heldout)
+
+
+def _accept_pair(st: Setting, s: Search, tried: dict[str, Tried],
+                 starts: FoldStarts) -> _Step | None:
+    """Two effects to accept together when none passes alone
+    (:func:`~fitstiff.diagnosis._choice.pair`), or None: the search ends."""
+    with phase(st.spent, "refits"):
+        found = pair(st.sp, st.folds, tried, starts, s.theta, s.hold, s.active, st.weights,
+                     current=s.current, noise=st.noise_pooled, min_shrink=st.min_shrink)
+    if found is None:
+        return None
+    s.hold = found.hold
+    s.theta, _, _, _ = st.sp.solve(found.theta, found.hold,
+                                   st.sp.model_mask(s.active + found.effects),
+                                   st.sp.nuisance_mask(), st.weights)
+    improved = improved_regions(st.sp, st.noise, st.masks, s.current, found.heldout)
+    for effect in found.effects:
+        s.decided[effect] = dataclasses.replace(
+            s.decided[effect], heldout_rms_after_N=found.heldout.rms_N, shrink=found.shrink,
+            converged=found.heldout.converged, regions_improved=improved,
+            together=tuple(found.effects))
+    return _Step(found.effects, found.heldout)
+
+
+def _take(st: Setting, s: Search, step: _Step) -> None:
+    """Add the accepted effects to the model, with their fitted values on the record. The
+    accepted model's held-out figure is its refit's, and each fold goes on from its own
+    training fit of it: never a figure chosen by its held-out value."""
+    s.active += step.effects
+    x = np.asarray(st.sp.physical(s.theta, s.hold, st.sp.model_mask(s.active)))
+    for effect in step.effects:
+        values = {st.sp.owners[k].name: float(x[k]) for k in st.sp.elements(effect)}
+        s.decided[effect] = dataclasses.replace(
+            s.decided[effect], accepted=True, why="",
+            parameters=parameter_entries(st.sp, values, "fit"),
+            reading=st.sp.problem.model.term(effect).reading())
+        s.accepted.append(effect)
+    s.current = step.heldout
+    s.fits = fold_fits(st.sp, s.current, s.active)
+
+
+def prune_accepted(st: Setting, s: Search) -> None:
+    """Drop the accepted effects that the others made redundant
+    (:func:`~fitstiff.diagnosis.prune.prune`), with why on their records."""
+    with phase(st.spent, "refits"):
+        pruned = prune(st.sp, st.folds, [s.decided[e].together or (e,) for e in s.accepted],
+                       s.current, s.theta, s.hold, s.active, st.weights,
+                       noise=st.noise_pooled, min_shrink=st.min_shrink)
+    s.current, s.theta, s.hold, s.active = (pruned.current, pruned.theta, pruned.hold,
+                                            pruned.active)
+    for unit, why in pruned.dropped.items():
+        for effect in unit:
+            s.decided[effect] = dataclasses.replace(s.decided[effect], accepted=False,
+                                                    why=why)
+            s.accepted.remove(effect)

@@ -1,0 +1,173 @@
+"""Fitting one candidate description of the held-out residual
+(:mod:`fitstiff.diagnosis.structure`): its columns (:class:`Design`; hat functions at
+``KNOTS`` quantiles for a smooth one, a sine and a cosine per log for a periodic one), the
+penalised least squares with the penalty chosen by generalised cross-validation
+(:func:`ridge`), and the fit on training samples that predicts every sample
+(:func:`fit_predict`, the period scanned for a periodic one).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+from fitstiff.diagnosis._structure_forms import Candidate, periods
+
+__all__ = ["KNOTS", "Design", "Fit", "fit_predict", "hats", "ridge"]
+
+KNOTS = 8
+#: penalty weights tried by generalised cross-validation, in units of the columns' scale
+_LAMBDAS = 10.0 ** np.arange(-4.0, 4.5, 1.0)
+
+
+def hats(v: np.ndarray, knots: np.ndarray) -> np.ndarray:
+    """Piecewise-linear hat functions at ``knots`` (constant beyond the ends)."""
+    x = np.clip(v, knots[0], knots[-1])
+    cols = np.zeros((v.size, knots.size))
+    idx = np.clip(np.searchsorted(knots, x, side="right") - 1, 0, knots.size - 2)
+    w = (x - knots[idx]) / (knots[idx + 1] - knots[idx])
+    rows = np.arange(v.size)
+    cols[rows, idx] = 1.0 - w
+    cols[rows, idx + 1] += w
+    return cols
+
+
+class Design:
+    """The columns of one candidate given the training samples (knots, period), centred per
+    log over all samples (the centring uses no residual)."""
+
+    def __init__(self, cand: Candidate, log_id: np.ndarray, weight: np.ndarray):
+        self.cand, self.log_id, self.weight = cand, log_id, weight
+        self.n_logs = int(log_id.max()) + 1
+        self.own = (log_id[:, None] == np.arange(self.n_logs)[None, :]).astype(float)
+        # the logs lie one after another: per-log sums are sums over these runs of rows
+        self._starts = np.flatnonzero(np.r_[True, np.diff(log_id) != 0])
+        total = self._per_log(weight)
+        self._total = np.where(total > 0, total, 1.0)
+
+    def columns(self, train: np.ndarray, period: float | None = None
+                ) -> tuple[np.ndarray, np.ndarray]:
+        c = self.cand
+        v = c.values
+        if c.form == "linear":
+            base = v[:, None] - np.mean(v[train])
+            pen = np.zeros((1, 1))
+        elif c.form == "curved":
+            z = v - np.mean(v[train])
+            base = np.column_stack([z, z**2])
+            pen = np.zeros((2, 2))
+        elif c.form == "step":
+            if c.variable == "direction":
+                base = v[:, None]
+            else:
+                base = (self.log_id[:, None] == np.arange(self.n_logs)[None, :]).astype(float)
+            pen = np.zeros((base.shape[1], base.shape[1]))
+        elif c.form == "periodic":
+            # one period, a phase per log: logs far apart along the stroke would need the
+            # period to a part in 10^5 to share one phase
+            phase = 2 * np.pi * v / period
+            base = np.concatenate([self.own * np.sin(phase)[:, None],
+                                   self.own * np.cos(phase)[:, None]], axis=1)
+            pen = np.zeros((base.shape[1], base.shape[1]))
+        else:                       # smooth; a hysteresis is smooth in the force's travel
+            knots = self._knots(v, train)
+            if knots.size < 3:
+                knots = np.linspace(v[train].min(), v[train].max() + 1e-12, 3)
+            base = hats(v, knots)
+            d2 = np.diff(np.eye(knots.size), 2, axis=0)
+            pen = d2.T @ d2
+        x = base * c.sign[:, None]
+        return self._centre(x), pen
+
+    def _knots(self, v: np.ndarray, train: np.ndarray) -> np.ndarray:
+        """``KNOTS`` quantiles of the training values; of each log's own for the position
+        (logs far apart along the stroke would otherwise share a handful of knots)."""
+        q = np.linspace(0, 1, KNOTS)
+        if self.cand.variable != "position":
+            return np.unique(np.quantile(v[train], q))
+        return np.unique(np.concatenate([np.quantile(v[train & (self.log_id == k)], q)
+                                         for k in range(self.n_logs)
+                                         if np.any(train & (self.log_id == k))]))
+
+    def _per_log(self, x: np.ndarray) -> np.ndarray:
+        """Sums over each log's samples (rows), one row per log."""
+        return np.add.reduceat(x, self._starts, axis=0)
+
+    def _centre(self, x: np.ndarray) -> np.ndarray:
+        """Each column less its weighted mean over each log's samples."""
+        w = self.weight if x.ndim == 1 else self.weight[:, None]
+        means = self._per_log(w * x) / (self._total if x.ndim == 1 else self._total[:, None])
+        return x - means[self.log_id]
+
+    def period_rss(self, r: np.ndarray, wt: np.ndarray, periods: np.ndarray) -> np.ndarray:
+        """The training RSS of the periodic description at each of ``periods`` at once:
+        its columns are a sine and a cosine per log, so the least squares fall apart into
+        a 2 x 2 system per log and period (what :meth:`columns` and :func:`ridge` give one
+        period at a time)."""
+        phase = 2 * np.pi * self.cand.values[:, None] / periods[None, :]
+        sign = self.cand.sign[:, None]
+        sin, cos = self._centre(sign * np.sin(phase)), self._centre(sign * np.cos(phase))
+        ws, wc = wt[:, None] * sin, wt[:, None] * cos
+        ss, cc, sc = self._per_log(ws * sin), self._per_log(wc * cos), self._per_log(ws * cos)
+        rs, rc = self._per_log(r[:, None] * ws), self._per_log(r[:, None] * wc)
+        det = ss * cc - sc**2
+        ok = det > 1e-12 * np.maximum(ss * cc, 1e-300)
+        safe = np.where(ok, det, 1.0)
+        a, b = (cc * rs - sc * rc) / safe, (ss * rc - sc * rs) / safe
+        explained = np.where(ok, a * rs + b * rc, 0.0).sum(axis=0)
+        return float(np.sum(wt * r**2)) - explained
+
+
+def ridge(x: np.ndarray, r: np.ndarray, pen: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Penalised least squares of ``r`` on ``x`` with weights ``w``; the penalty's weight by
+    generalised cross-validation (a tiny ridge keeps flat columns harmless)."""
+    xtw = x.T * w
+    a = xtw @ x
+    b = xtw @ r
+    n = float(np.sum(w > 0))
+    scale = max(float(np.trace(a)) / max(a.shape[0], 1), 1e-300)
+    tiny = 1e-9 * scale * np.eye(a.shape[0])
+    if not np.any(pen):
+        return np.linalg.solve(a + tiny, b)
+    best, beta_best = math.inf, None
+    for lam in _LAMBDAS:
+        m = a + lam * scale * pen + tiny
+        try:
+            beta = np.linalg.solve(m, b)
+            dof = float(np.trace(np.linalg.solve(m, a)))
+        except np.linalg.LinAlgError:
+            continue
+        rss = max(float(np.sum(w * r**2) - 2 * beta @ b + beta @ a @ beta), 0.0)
+        gcv = rss / max(n * (1 - dof / n) ** 2, 1e-300)
+        if gcv < best:
+            best, beta_best = gcv, beta
+    return beta_best
+
+
+class Fit(NamedTuple):
+    """A description fitted on training samples: its prediction of every sample, the period
+    chosen (a periodic one; else None) and its number of columns (``dof``)."""
+
+    pred: np.ndarray
+    period: float | None
+    dof: int
+
+
+def fit_predict(design: Design, r: np.ndarray, train: np.ndarray, w: np.ndarray) -> Fit:
+    """Fit on ``train`` (weights ``w``), predict every sample; the period chosen on
+    ``train`` for a periodic candidate."""
+    wt = w * train
+    if design.cand.form != "periodic":
+        x, pen = design.columns(train)
+        beta = ridge(x, r, pen, wt)
+        return Fit(x @ beta, None, x.shape[1])
+    grid = periods(design.cand.values, design.log_id)
+    k = int(np.argmin(design.period_rss(r, wt, grid)))
+    # refine between the neighbours of the best grid period
+    fine = np.geomspace(grid[max(k - 1, 0)], grid[min(k + 1, grid.size - 1)], 21)
+    period = float(fine[int(np.argmin(design.period_rss(r, wt, fine)))])
+    x, pen = design.columns(train, period)
+    beta = ridge(x, r, pen, wt)
+    return Fit(x @ beta, float(period), x.shape[1])

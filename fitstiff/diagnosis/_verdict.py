@@ -1,0 +1,83 @@
+"""What the :class:`~fitstiff.diagnosis.result.Diagnosis` says of the gap: its motion-region
+cells as records (``gap["regions"]``, ``unexplained``) and the verdict's lines.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from fitstiff.diagnosis.gap import pooled_excess
+
+__all__ = ["cell", "region_records", "verdict"]
+
+
+def cell(row) -> dict[str, object]:
+    """One row of a :func:`~fitstiff.diagnosis.gap.region_table` as a JSON record."""
+    return {"file": row["file"], "region": row["region"],
+            "pressure_bar": None if not np.isfinite(row["pressure_bar"]) else
+            float(row["pressure_bar"]), "direction": row["direction"],
+            "speed_band": row["speed_band"], "samples": int(row["samples"]),
+            "rms_N": float(row["rms_N"]), "excess_N": float(row["excess_N"]),
+            "bias_N": float(row["bias_N"]), "z_rms": float(row["z_rms"])}
+
+
+def region_records(table) -> list[dict[str, object]]:
+    """Every row of a region table as a record, with its share, bias z-score and noise."""
+    return [] if table.empty else [cell(row) | {"share": float(row["share"]),
+                                                "z_bias": float(row["z_bias"]),
+                                                "noise_N": float(row["noise_N"])}
+                                   for _, row in table.iterrows()]
+
+
+def verdict(baseline, accepted, decided, gap, still, noise, described=()) -> list[str]:
+    """The verdict's lines: whether the baseline converged, what the accepted effects
+    explain (or that none passed), what stays above the noise floor (``still``: the cells
+    above it) and what of it a description follows (``described``)."""
+    before, after = gap["heldout_rms_N"], gap["final_heldout_rms_N"]
+    lines = []
+    if not gap["baseline_converged"]:
+        lines.append(f"the baseline {baseline} did not converge on every fold: the diagnosis "
+                     "below rests on an unfinished fit")
+    if not accepted:
+        lines.append(f"no candidate passes the rule: held-out RMS {before:.3g} N against a "
+                     f"noise floor of {noise:.3g} N")
+    else:
+        lines.append(_explained(accepted, decided, before, after, noise))
+        lines += [f"{e}: {decided[e].reading}" for e in accepted if decided[e].reading]
+    if still.empty:
+        lines.append("nothing stays above the noise floor")
+    else:
+        lines.append("unexplained: " + ", ".join(
+            f"{excess:.2g} N RMS above the noise in the {region} cells above the floor"
+            for region, excess in pooled_excess(still).items()))
+    found = [d for d in described if d.accepted]
+    if found:
+        left = math.sqrt(max(after**2 - noise**2, 0.0))
+        lines.append(f"{left:.2g} N stays unexplained above the noise; " + "; ".join(
+            f"{d.size_N:.2g} N of it follows {d.variable.replace('_', ' ')} ({d.form}"
+            + (f", or {', '.join(d.confounded_with)}: the logs cannot tell them apart"
+               if d.confounded_with else "") + ")" for d in found)
+            + ": no library effect has that shape (see unexplained_structure for what "
+            "usually does and what to record)")
+    return lines
+
+
+def _explained(accepted, decided, before: float, after: float, noise: float) -> str:
+    """The verdict's line of what the accepted effects explain."""
+    total = max(before - noise, 1e-12)
+    parts = []
+    for e in accepted:
+        together = decided[e].together
+        if not together:
+            parts.append(f"{e} ({decided[e].fitted_text}) explains "
+                         f"{decided[e].shrink:.0%} of the remaining gap")
+        elif e == together[0]:
+            parts.append(f"{' and '.join(together)} together ("
+                         + "; ".join(decided[t].fitted_text for t in together)
+                         + f") explain {decided[e].shrink:.0%} of the remaining gap "
+                         "(neither passed alone)")
+    return ("; ".join(parts) + f" (held-out RMS {before:.3g} -> {after:.3g} N, "
+            f"{(before - after) / total:.0%} of the gap above the noise floor "
+            f"{noise:.3g} N)")
