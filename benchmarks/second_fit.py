@@ -19,7 +19,11 @@ if not root.exists():
     from fitstiff._testing.fleet import make_fleet
     make_fleet(root, cylinders=2, outliers=0.0, samples=3700)
 logs = [load_logs(sorted((root / f"cyl000{c}").glob("*.csv"))) for c in (0, 1)]
-t = time.perf_counter(); a = fitstiff.fit(logs[0], "chamber+dahl"); first = time.perf_counter() - t
-t = time.perf_counter(); b = fitstiff.fit(logs[1], "chamber+dahl"); second = time.perf_counter() - t
+t = time.perf_counter()
+a = fitstiff.fit(logs[0], "chamber+dahl")
+first = time.perf_counter() - t
+t = time.perf_counter()
+b = fitstiff.fit(logs[1], "chamber+dahl")
+second = time.perf_counter() - t
 print(f"first fit {first:.2f} s, second fit (other data, one structure) {second:.2f} s; "
       f"breakaway {b.derived['breakaway_N'][0]:.6f} N")

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from fitstiff._testing.speed import make_log
-from fitstiff.inference.closed_series import MAX_TERMS, ClosedFormLikelihood, taylor_terms
+from fitstiff.inference.closed_series import (MAX_TERMS, ClosedFormLikelihood,
+                                              pressure_closed_forms, taylor_terms)
 from fitstiff.inference.fitting import fit_problem
 from fitstiff.inference.likelihood import AR1, Gaussian, Layout, StudentT, TurningPoints
 from fitstiff.inference.posterior import LogPosterior
@@ -108,7 +109,7 @@ def test_fixed_exponent_needs_no_polynomial(bench_log):
 def test_models_without_the_closed_form_keep_the_residuals(bench_log, spec):
     problem = Problem([bench_log.slice(0, 1500)], spec)
     assert problem.model.closed_form_chamber() is None
-    assert problem.pressure_closed_forms() == []
+    assert pressure_closed_forms(problem) == []
     layout = Layout.from_problem(problem)
     noise = AR1().prepared(np.asarray(problem.residuals(_start(problem))), layout)
     assert ClosedFormLikelihood.of(problem, noise, _start(problem), layout) is None
@@ -156,11 +157,11 @@ def test_gram_and_restriction_reproduce_the_sums_of_squares():
         c = rng.standard_normal(3)
         r = r_hat.copy()
         r[n:] = (columns @ c) * layout.mask[n:]
-        q = np.asarray(noise._squares(r, layout))
+        q = np.asarray(noise.squares(r, layout))
         g = noise.gram(columns * layout.mask[n:, None], 1, layout)
         assert c @ g @ c == pytest.approx(q[1], rel=1e-12)
         sub = Layout.from_series([ResidualSeries(0, "force", slice(0, n), np.ones(n, bool))],
                                  ["force[x]"])
         alone = noise.restricted([0], layout, sub)
-        assert float(alone._squares(r[:n], sub)[0]) == pytest.approx(q[0], rel=1e-12)
+        assert float(alone.squares(r[:n], sub)[0]) == pytest.approx(q[0], rel=1e-12)
         assert alone.dof(sub).tolist() == noise.dof(layout)[:1].tolist()

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from fitstiff.errors import InputError
-from fitstiff.inference.problem import NUISANCE_PARAMS
+from fitstiff.inference.nuisances import NUISANCE_PARAMS
 from fitstiff.physics import derived
 from fitstiff.physics.model import build_model
 from fitstiff.physics.params import (TRANSFORMS, Param, Parameterization, named_params, to_display,

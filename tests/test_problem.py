@@ -118,7 +118,7 @@ def test_the_data_options_travel_as_one_record(logs):
     """Issue 35: the six data options are one frozen Selection, passed whole; the keywords
     build the same record, a re-opened run's JSON options give it back, and a problem keeps
     the one it was given."""
-    options = {"denoise": "off", "sample_range": [10, 900], "weights": {"presliding": 2.0},
+    options = {"denoise": False, "sample_range": [10, 900], "weights": {"presliding": 2.0},
                "skip": 5, "free": ["closing_pressure"], "exclude": [[100, 200]]}
     selection, rest = Selection.pick(options | {"solver": "lm", "starts": 2})
     assert rest == {"solver": "lm", "starts": 2}
@@ -142,5 +142,7 @@ def test_the_data_options_travel_as_one_record(logs):
         Problem(logs, "chamber+dahl", selection=selection, skip=3)
     with pytest.raises(TypeError, match="unexpected keyword argument.*skipp"):
         Problem(logs, "chamber+dahl", skipp=3)
+    with pytest.raises(InputError, match="denoise 'off': is not True, False or 'auto'"):
+        Selection(denoise="off")
     with pytest.raises(InputError, match="exclude \\(5, 2\\).*0 <= start < stop"):
         Problem(logs, "chamber+dahl", selection=Selection(exclude=[(5, 2)]))

@@ -232,6 +232,8 @@ def still_mask(x: np.ndarray, dt: float, *, min_pause: float = 0.2) -> np.ndarra
     return out
 
 
+# long: one explicit time loop whose state (pressures, temperatures, friction, junction, slip
+# elements) is read top to bottom as the rig's physics; what the sensors record is _record
 def simulate_log(program: Program, *, base: Base, effects: Mapping[str, Mapping[str, float]]
                  = {}, noise: SensorNoise = SensorNoise(), rate_hz: float = 500.0,
                  substeps: int = 15, rng: np.random.Generator | None = None,
@@ -400,6 +402,20 @@ def simulate_log(program: Program, *, base: Base, effects: Mapping[str, Mapping[
         r = ool["ripple"]
         F = F + r["amplitude"] * np.sin(2 * np.pi * (base.x0 + u) / r["wavelength"] + r["phase"])
 
+    return _record(t, xs, u, F, pa, pb, substeps=substeps, effects=e, ool=ool, base=base,
+                   noise=noise, clean=clean, rng=rng, name=name)
+
+
+def _record(t, xs, u, F, pa, pb, *, substeps: int, effects, ool, base: Base, noise: SensorNoise,
+            clean: bool, rng: np.random.Generator, name: str
+            ) -> tuple[Log, dict[str, np.ndarray]]:
+    """What the rig's sensors record of the fine-grid channels (time ``t``, sensor position
+    ``xs``, piston displacement ``u``, force ``F``, chamber pressures ``pa``, ``pb``): every
+    ``substeps``-th sample, the force channel's delay and drift, the out-of-library sensor
+    effects, then the noise and quantisation (none when ``clean``). The :class:`Log` and the
+    noise-free channels at the logged samples."""
+    e = effects
+    N = xs.size
     idx = np.arange(0, N, substeps)
     t_log = t[idx]
     delay = e.get("time_delay", {}).get("delay", 0.0)

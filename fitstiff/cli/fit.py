@@ -10,7 +10,7 @@ from fitstiff.cli.common import (add_log_arguments, add_out_argument, input_path
 from fitstiff.errors import InputError
 from fitstiff.inference.comparison import compare
 from fitstiff.inference.fitting import SOLVERS, fit
-from fitstiff.inference.problem import OPTIONAL_NUISANCES
+from fitstiff.inference.nuisances import OPTIONAL_NUISANCES
 from fitstiff.io.output import OutputDir, to_jsonable
 from fitstiff.io.validation import parse_decimal
 from fitstiff.physics.model import DEFAULT_MODEL, parse_fix

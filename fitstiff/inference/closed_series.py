@@ -3,7 +3,7 @@
 With the chamber's closed form (:meth:`Model.closed_form_chamber
 <fitstiff.physics.model.Model.closed_form_chamber>`) the residual of a logged pressure is
 ``r = (p0 * exp(n * L) - measured) * w`` with a log volume ratio ``L`` fixed by the drive
-(:meth:`Problem.pressure_closed_forms <fitstiff.inference.problem.Problem.pressure_closed_forms>`);
+(:func:`pressure_closed_forms`);
 only the exponent ``n`` and the start pressure ``p0`` vary with ``theta``. Around a centre
 ``(n_c, p0_c)`` (the least-squares optimum), with ``d = n - n_c``::
 
@@ -36,8 +36,9 @@ import numpy as np
 from fitstiff._jax import jnp
 from fitstiff.inference.likelihood import Layout, NoiseModel, _Quadratic
 from fitstiff.inference.problem import Problem
+from fitstiff.physics.terms import Chamber
 
-__all__ = ["ClosedFormLikelihood", "PressureExpansion", "taylor_terms"]
+__all__ = ["ClosedFormLikelihood", "PressureExpansion", "taylor_terms", "pressure_closed_forms"]
 
 #: most Taylor terms of an expansion; wider ranges of ``n * L`` keep the residuals
 MAX_TERMS = 20
@@ -87,7 +88,7 @@ class PressureExpansion:
     def at(cls, problem: Problem, theta) -> PressureExpansion | None:
         """The expansion around ``theta``; None when the problem has no pressure series in
         closed form or ``n * L`` spans too wide a range for :func:`taylor_terms`."""
-        forms = problem.pressure_closed_forms()
+        forms = pressure_closed_forms(problem)
         if not forms:
             return None
         theta = jnp.asarray(theta)
@@ -205,3 +206,25 @@ class ClosedFormLikelihood:
         return (self.noise.squares_likelihood(q, self.layout),
                 self.rest_noise.linear_statistics(z, q))
 
+
+def pressure_closed_forms(problem: Problem
+                          ) -> list[tuple[int, int, np.ndarray, np.ndarray, np.ndarray]]:
+    """Per pressure series of the problem's residuals (in order), when the model's pressures
+    are their closed form (:meth:`Model.closed_form_chamber
+    <fitstiff.physics.model.Model.closed_form_chamber>`) ``p = p0 * exp(n * log_ratio)``:
+    ``(log, chamber (0: A, 1: B), log_ratio, measured, weight)``, NumPy arrays over the
+    series' padded length, ``p0`` the log's
+    :meth:`~fitstiff.inference.problem.Problem.closing_pressures`; the residual is
+    ``(p - measured) * weight``. Empty when the pressures have no closed form."""
+    if problem.model.closed_form_chamber() is None:
+        return []
+    out = []
+    for g in problem.groups:
+        ratios = [np.asarray(r) for r in Chamber.log_ratios(g.drive)]
+        for c, measured in enumerate(g.pressure):
+            if measured is None:
+                continue
+            for row, i in enumerate(g.index):
+                out.append((i, c, ratios[c][row], np.asarray(measured[row]),
+                            np.asarray(g.pressure_weight[c][row])))
+    return out

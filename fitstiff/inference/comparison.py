@@ -122,7 +122,7 @@ def compare(logs: Sequence[Log], specs: Sequence[str], **fit_kw) -> tuple[Compar
 
 
 #: held-out RMS values within this share of the logs' noise floor are a tie, here and in the
-#: diagnosis (:func:`fitstiff.diagnosis.diagnose._choose`): broken by identifiability (here)
+#: diagnosis (:func:`fitstiff.diagnosis._choice.choose`): broken by identifiability (here)
 #: or the fit to all the data (BIC)
 TIE = 0.01
 

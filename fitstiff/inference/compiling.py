@@ -24,7 +24,7 @@ from fitstiff._jax import jax, jnp
 if TYPE_CHECKING:
     from fitstiff.inference.problem import Problem
 
-__all__ = ["compile_for", "compiled_batch", "fingerprint"]
+__all__ = ["compile_for", "compiled_batch", "fingerprint", "structure_key"]
 
 #: functions compiled for one structure, shared by the problems of that structure
 #: (:meth:`Problem.compiled`); the oldest is dropped beyond :data:`_SHARED_MAX`
@@ -177,3 +177,23 @@ def compiled_batch(problems: Sequence[Problem], fn: Callable, /, *, lanes: int |
         return jax.tree.map(lambda x: x[:len(problems)], out) if pad else out
 
     return call
+
+
+def structure_key(problem: Problem, leaves=None, tree=None, structure=None) -> tuple | None:
+    """What a function compiled for ``problem`` depends on besides its data arrays (hashable;
+    ``None`` when some static part cannot be hashed): the arrays' tree and shapes (``leaves``
+    and ``tree`` of its :meth:`~fitstiff.inference.problem.Problem.data_arrays` when the
+    caller has them split, with their static ``structure``), the model's values (the start
+    values and the fixed ones live in it), the free parameters and nuisances, the logs'
+    lengths and whether each was denoised."""
+    if leaves is None:
+        data, structure = eqx.partition(problem.data_arrays(), eqx.is_array)
+        leaves, tree = jax.tree.flatten(data)
+    static = fingerprint(structure)
+    model = fingerprint(problem.model)
+    if static is None or model is None:
+        return None
+    return (tree, tuple((np.shape(a), np.dtype(a.dtype).str) for a in leaves), static,
+            model, tuple(problem.par.names), tuple(problem.nuisance_names),
+            tuple(sorted(problem.fixed_nuisances)), problem.has_friction,
+            tuple(len(log) for log in problem.logs), tuple(problem.denoised))

@@ -49,7 +49,8 @@ import numpy as np
 
 from fitstiff._jax import jnp
 from fitstiff.errors import InputError
-from fitstiff.inference.problem import NUISANCE_PARAMS, Problem
+from fitstiff.inference.nuisances import NUISANCE_PARAMS
+from fitstiff.inference.problem import Problem
 from fitstiff.io.validation import describe_type, read_json, shown
 from fitstiff.physics.params import Parameterization, named_params
 
@@ -212,7 +213,7 @@ class Priors:
         """SI values of the sampled names (last axis: ``names[index]``) -> display units: the
         model's parameters as :meth:`Param.to_display <fitstiff.physics.params.Param.to_display>`,
         the per-log nuisances by theirs
-        (:data:`~fitstiff.inference.problem.NUISANCE_PARAMS`)."""
+        (:data:`~fitstiff.inference.nuisances.NUISANCE_PARAMS`)."""
         return physical / self.scales[index]
 
     def log_density(self, physical):

@@ -4,11 +4,10 @@ Shared by least squares (:mod:`fitstiff.inference.fitting`) and the posterior
 (:mod:`fitstiff.inference.posterior`), so both see the same coordinates and the same data.
 
 The flat vector ``theta`` is ``[shared model parameters (unconstrained), per-log nuisances]``.
-Per-log nuisances are the force-channel offset (N, always) and, for models with a friction
-base, the initial friction state (fraction of saturation in (-1, 1), through ``tanh``): a log
-may start mid-hysteresis. Either can be fixed with ``fix``. On request (``free``) the closing
-pressure of each log's closed chambers is a nuisance too (bar gauge in ``theta``), for logs
-whose ``supply_bar`` is unknown or doubtful.
+The per-log nuisances (:mod:`fitstiff.inference.nuisances`) are the force-channel offset and,
+for models with a friction base, the initial friction state (a log may start mid-hysteresis);
+either can be fixed with ``fix``. On request (``free``) the closing pressure of each log's
+closed chambers is one too, for logs whose ``supply_bar`` is unknown or doubtful.
 
 Residuals are whitened per channel: force residuals divided by the log's force-noise estimate,
 and, for closed chambers whose pressure is logged, pressure residuals divided by the
@@ -22,50 +21,33 @@ from __future__ import annotations
 import copy
 import dataclasses
 import functools
-import math
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from typing import NamedTuple
 
 import equinox as eqx
 import numpy as np
 
 from fitstiff._jax import jax, jnp
 from fitstiff.errors import InputError
-from fitstiff.inference.selection import PROBLEM_OPTIONS, Selection
-from fitstiff.inference.compiling import compile_for, compiled_batch, fingerprint
-from fitstiff.inference.stacking import Group, build_groups, same_structure
+from fitstiff.inference.nuisances import NUISANCE_PARAMS, NUISANCES, OPTIONAL_NUISANCES
+from fitstiff.inference.selection import Selection
+from fitstiff.inference.compiling import compile_for, compiled_batch, structure_key
+from fitstiff.inference.stacking import (Group, ResidualSeries, build_groups, residual_series,
+                                        same_structure)
 from fitstiff.io.guards import check_logs
 from fitstiff.io.log import Log
 from fitstiff.physics.drive import Drive, drive_from_log
 from fitstiff.physics.model import (Model, build_model, model_needs)
 from fitstiff.physics.params import (CONSTANT_JACOBIAN, Param, Parameterization, find_param,
                                      named_params)
-from fitstiff.physics.terms import Chamber, FrictionBase
+from fitstiff.physics.terms import FrictionBase
 from fitstiff.segments.denoise import (chatters, denoise_displacement, reversal_samples,
                                        segment_velocity, smooth_acceleration, smooth_force,
                                        turning_points)
 from fitstiff.segments.segmentation import Segmentation, estimate_noise, segment
 from fitstiff.signal.noise import marginal_scale, noise_floor
 
-__all__ = ["Problem", "compiled_batch", "NUISANCES", "OPTIONAL_NUISANCES", "PROBLEM_OPTIONS",
-           "ResidualSeries", "channel_noise"]
+__all__ = ["Problem", "compiled_batch", "ResidualSeries", "channel_noise", "CHANNELS"]
 
-#: the per-log nuisances as transform-layer entries (SI values; ``theta`` holds their
-#: unconstrained values: the offset as it is, the initial friction state through ``tanh``,
-#: the closing pressure in bar, on the scale of the other entries)
-NUISANCE_PARAMS = {
-    "offset": Param("offset", "N", 1.0, -math.inf, math.inf, "force-channel offset of a log"),
-    "friction_state0": Param("friction_state0", "-", 1.0, -1.0, 1.0,
-                             "initial friction state of a log (fraction of saturation)",
-                             transform="tanh"),
-    "closing_pressure": Param("closing_pressure", "bar", 1e5, -math.inf, math.inf,
-                              "gauge pressure at which a log's chambers were closed",
-                              transform="scaled"),
-}
-#: per-log nuisance names (fit.json ``per_log``)
-NUISANCES = tuple(NUISANCE_PARAMS)
-#: nuisances held unless asked for with ``free``
-OPTIONAL_NUISANCES = ("closing_pressure",)
 #: the observed channels of a log, in the order of the residual vector
 CHANNELS = ("force", "pressure_a", "pressure_b")
 _DEFAULT_CLOSING_PA = 5e5      # gauge start value when neither rig nor log says more
@@ -76,16 +58,6 @@ _FORCE_NOISE_FLOOR = 1e-3      # N
 def channel_noise(values: np.ndarray) -> float:
     """Gaussian-equivalent white-noise level of a sampled channel (MAD of 2nd differences)."""
     return estimate_noise(values)
-
-
-class ResidualSeries(NamedTuple):
-    """Where one log's channel lies in :meth:`Problem.residuals` (see
-    :meth:`Problem.residual_series`)."""
-
-    log: int          # index into Problem.logs
-    channel: str      # "force", "pressure_a" or "pressure_b"
-    span: slice       # its entries of the residual vector (padded length, in time order)
-    mask: np.ndarray  # (len,) bool: samples with weight > 0 (the others are exactly 0)
 
 
 class Problem:
@@ -99,7 +71,7 @@ class Problem:
             ``offset`` / ``friction_state0`` fix those for every log (at 0).
         selection: the data options (:class:`~fitstiff.inference.selection.Selection`:
             denoising, the sample range, region weights, skipped and excluded samples, optional
-            nuisances); or give its fields as keywords (``denoise="off"``, ``skip=100``).
+            nuisances); or give its fields as keywords (``denoise=False``, ``skip=100``).
         segmentations: one :class:`~fitstiff.segments.segmentation.Segmentation` per log (reversals,
             pauses, regions, displacement noise), e.g. from
             :func:`~fitstiff.segments.segmentation.segment` with other options; default
@@ -305,24 +277,10 @@ class Problem:
     # -- evaluation -----------------------------------------------------------------------
     def residual_series(self, channels: Sequence[str] = CHANNELS) -> list[ResidualSeries]:
         """The layout of :meth:`residuals`: one entry per log and observed channel, in the
-        order of the residual vector. Each covers its log's padded length in time order;
-        samples outside ``mask`` (padding, zero weight) have residual exactly 0.
-        ``channels``: only those of :data:`CHANNELS` (the layout of ``residuals(...,
-        channels=)``)."""
-        out, start = [], 0
-        for g in self._groups:
-            n = g.force.shape[1]
-            channels_here = [("force", g.weight)] + [
-                (f"pressure_{c}", w) for c, w in zip("ab", g.pressure_weight) if w is not None]
-            for channel, weight in channels_here:
-                if channel not in channels:
-                    continue
-                positive = np.asarray(weight) > 0          # one transfer, not one per row
-                for row, i in enumerate(g.index):
-                    out.append(ResidualSeries(i, channel, slice(start, start + n),
-                                              positive[row]))
-                    start += n
-        return out
+        order of the residual vector (:func:`~fitstiff.inference.stacking.residual_series`
+        of the problem's groups); ``channels``: only those of :data:`CHANNELS` (the layout of
+        ``residuals(..., channels=)``)."""
+        return residual_series(self._groups, channels)
 
     def displacements(self) -> tuple:
         """The displacement each group drives the model with, ``(L, N)`` per group."""
@@ -438,26 +396,6 @@ class Problem:
                 rows[i] = jnp.stack([drive.p_a0[row], drive.p_b0[row]])
         return jnp.stack(rows)
 
-    def pressure_closed_forms(self) -> list[tuple[int, int, np.ndarray, np.ndarray, np.ndarray]]:
-        """Per pressure series of :meth:`residuals` (in order), when the model's pressures are
-        their closed form (:meth:`Model.closed_form_chamber
-        <fitstiff.physics.model.Model.closed_form_chamber>`) ``p = p0 * exp(n * log_ratio)``:
-        ``(log, chamber (0: A, 1: B), log_ratio, measured, weight)``, NumPy arrays over the
-        series' padded length, ``p0`` the log's :meth:`closing_pressures`; the residual is
-        ``(p - measured) * weight``. Empty when the pressures have no closed form."""
-        if self.model.closed_form_chamber() is None:
-            return []
-        out = []
-        for g in self._groups:
-            ratios = [np.asarray(r) for r in Chamber.log_ratios(g.drive)]
-            for c, measured in enumerate(g.pressure):
-                if measured is None:
-                    continue
-                for row, i in enumerate(g.index):
-                    out.append((i, c, ratios[c][row], np.asarray(measured[row]),
-                                np.asarray(g.pressure_weight[c][row])))
-        return out
-
     def per_log(self, theta) -> list[dict[str, np.ndarray]]:
         """Per log (in order): predicted force, per-term forces and pressures, unpadded."""
         out: list[dict[str, np.ndarray] | None] = [None] * self.n_logs
@@ -520,22 +458,10 @@ class Problem:
 
     def structure_key(self, leaves=None, tree=None, structure=None) -> tuple | None:
         """What a function compiled for this problem depends on besides its data arrays
-        (hashable; ``None`` when some static part cannot be hashed): the arrays' tree and
-        shapes, their static structure, the model's values (the start values and the fixed
-        ones live in it), the free parameters and nuisances, the logs' lengths and whether
-        each was denoised. Two problems with equal keys share compiled functions
-        (:meth:`compiled`); a fleet batches cylinders of one key (:mod:`fitstiff.fleet`)."""
-        if leaves is None:
-            data, structure = eqx.partition(self.data_arrays(), eqx.is_array)
-            leaves, tree = jax.tree.flatten(data)
-        static = fingerprint(structure)
-        model = fingerprint(self.model)
-        if static is None or model is None:
-            return None
-        return (tree, tuple((np.shape(a), np.dtype(a.dtype).str) for a in leaves), static,
-                model, tuple(self.par.names), tuple(self.nuisance_names),
-                tuple(sorted(self.fixed_nuisances)), self.has_friction,
-                tuple(len(log) for log in self.logs), tuple(self.denoised))
+        (:func:`~fitstiff.inference.compiling.structure_key`). Two problems with equal keys
+        share compiled functions (:meth:`compiled`); a fleet batches cylinders of one key
+        (:mod:`fitstiff.fleet`)."""
+        return structure_key(self, leaves, tree, structure)
 
     def data_arrays(self):
         """The arrays a compiled function receives as arguments (:meth:`compiled`): the

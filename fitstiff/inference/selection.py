@@ -55,6 +55,9 @@ class Selection:
     exclude: tuple[tuple[int, int], ...] = ()
 
     def __post_init__(self):
+        if not (isinstance(self.denoise, (bool, np.bool_)) or self.denoise == "auto"):
+            raise InputError(None, f"denoise {self.denoise!r}", "is not True, False or 'auto'",
+                             "give denoise=True (on), False (off) or 'auto'")
         # lists (a JSON round trip, a caller's list) become tuples; the items of ``exclude``
         # are checked where they are used (Problem names a bad one)
         if self.sample_range is not None:

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Mapping, Sequence
+from typing import NamedTuple
 
 import equinox as eqx
 import numpy as np
@@ -19,7 +20,7 @@ from fitstiff.physics.model import difference_acceleration, time_steps
 from fitstiff.signal.monotone import pad_runs
 
 __all__ = ["PAD_RATIO", "Group", "build_groups", "length_buckets", "pad", "pad_drive",
-           "same_closed_forms", "same_structure"]
+           "same_closed_forms", "same_structure", "ResidualSeries", "residual_series"]
 
 #: a log shorter than this times the longest of its stack is run in a stack of its own
 #: (``benchmarks/posterior_default.py``: four logs of 3 200-12 800 samples)
@@ -155,4 +156,35 @@ def same_structure(drives: list[Drive]) -> list[Drive]:
             v = d.velocity if d.velocity is not None else jnp.diff(x, prepend=x[0]) / dt
             value = v if field == "velocity" else difference_acceleration(v, dt_mid)
             out[k] = dataclasses.replace(d, **{field: jnp.asarray(value)})
+    return out
+
+
+class ResidualSeries(NamedTuple):
+    """Where one log's channel lies in the residual vector of
+    :meth:`~fitstiff.inference.problem.Problem.residuals` (see :func:`residual_series`)."""
+
+    log: int          # index into Problem.logs
+    channel: str      # "force", "pressure_a" or "pressure_b"
+    span: slice       # its entries of the residual vector (padded length, in time order)
+    mask: np.ndarray  # (len,) bool: samples with weight > 0 (the others are exactly 0)
+
+
+def residual_series(groups: Sequence[Group], channels: Sequence[str]) -> list[ResidualSeries]:
+    """The layout of the residual vector of stacked ``groups``: one entry per log and observed
+    channel (``"force"``, ``"pressure_a"``, ``"pressure_b"``; only those in ``channels``), in
+    the order of the vector. Each covers its log's padded length in time order; samples
+    outside ``mask`` (padding, zero weight) have residual exactly 0."""
+    out, start = [], 0
+    for g in groups:
+        n = g.force.shape[1]
+        channels_here = [("force", g.weight)] + [
+            (f"pressure_{c}", w) for c, w in zip("ab", g.pressure_weight) if w is not None]
+        for channel, weight in channels_here:
+            if channel not in channels:
+                continue
+            positive = np.asarray(weight) > 0          # one transfer, not one per row
+            for row, i in enumerate(g.index):
+                out.append(ResidualSeries(i, channel, slice(start, start + n),
+                                          positive[row]))
+                start += n
     return out

@@ -191,6 +191,7 @@ class Model(eqx.Module):
         return Step(t=t, dt=dt, x=x, dx=dx, v=v, a=a, p_a=drive.pressure_a,
                     p_b=drive.pressure_b, still=drive.still)
 
+    # long: the scan body's closures step the terms with the modulation they share
     def run(self, drive: Drive) -> Prediction:
         """Run the scan: total force, per-term forces and the chamber pressures.
 

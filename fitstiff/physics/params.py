@@ -26,7 +26,7 @@ scaled       ``y * scale`` (``y`` in the display unit)         a log's closing p
 ============ ================================================= ==========================
 
 The per-log nuisances of an identification problem (force offset, initial friction state,
-closing pressure) are :class:`Param` entries too (``fitstiff.inference.problem.NUISANCE_PARAMS``).
+closing pressure) are :class:`Param` entries too (``fitstiff.inference.nuisances.NUISANCE_PARAMS``).
 A ``scaled`` or ``identity`` transform has a constant log-Jacobian (:data:`CONSTANT_JACOBIAN`),
 which a density may leave out.
 """

@@ -43,7 +43,8 @@ from fitstiff.errors import InputError
 from fitstiff.inference.fitting import FitResult
 from fitstiff.inference.posterior import PREDICTIVE, Posterior, PosteriorRecord
 from fitstiff.inference.posterior.chain import CHAIN, ChainStore
-from fitstiff.inference.problem import NUISANCES, Problem
+from fitstiff.inference.nuisances import NUISANCES
+from fitstiff.inference.problem import Problem
 from fitstiff.inference.selection import Selection
 from fitstiff.io.loading import load_logs
 from fitstiff.io.log import Log

@@ -13,7 +13,8 @@ import numpy as np
 
 from fitstiff._jax import jax
 from fitstiff.inference.identifiability import Identifiability
-from fitstiff.inference.problem import NUISANCE_PARAMS, Problem
+from fitstiff.inference.nuisances import NUISANCE_PARAMS
+from fitstiff.inference.problem import Problem
 from fitstiff.physics.derived import split_unit
 from fitstiff.physics.model import Model
 from fitstiff.physics.params import to_display, to_si

@@ -15,7 +15,8 @@ from fitstiff.inference import lm
 from fitstiff.inference.fitting.result import FitResult, PER_LOG_NUISANCES, _correlation, _finite
 from fitstiff.inference.identifiability import (Identifiability, assess_identifiability,
                                                 reversal_travel)
-from fitstiff.inference.problem import NUISANCE_PARAMS, Problem
+from fitstiff.inference.nuisances import NUISANCE_PARAMS
+from fitstiff.inference.problem import Problem
 from fitstiff.io.guards import check_finite
 from fitstiff.physics.derived import DERIVED, derived_quantities
 from fitstiff.physics.derived import to_display as derived_display
@@ -77,38 +78,16 @@ def _summarise(problem: Problem, theta, *, converged: bool, message: str, steps:
     rho = _lag1(problem, per_log_pred)
     inflation = (1 + rho) / (1 - rho) if rho > 0 else 1.0
 
-    # covariance in theta, via the SVD of J's triangular factor (J's singular values and
-    # directions); undetermined directions named, not inverted
-    _, sv, vt = np.linalg.svd(summary.r_factor, full_matrices=False)
-    keep = sv > _SINGULAR * sv[0] if sv.size else np.zeros(0, bool)
-    inv = np.where(keep, 1.0 / np.where(keep, sv, 1.0) ** 2, 0.0)
-    jtj_inv = (vt.T * inv) @ vt
-    # force noise (AR(1)-inflated) + turning-point errors propagated through the scan
-    cov_theta = jtj_inv * s2 * inflation + jtj_inv @ summary.eiv_gram @ jtj_inv
     names = problem.names
-    warnings = []
-    undetermined = np.zeros(n_par, dtype=bool)
-    for j in np.flatnonzero(~keep):
-        involved = np.flatnonzero(np.abs(vt[j]) > 0.3)
-        undetermined[involved] = True
-        combo = " + ".join(f"{vt[j][i]:+.2f} {names[i]}" for i in involved)
-        warnings.append(f"the data do not determine the combination {combo}; their standard "
-                        "errors are not reported (fix one of them or add excitation)")
+    cov_theta, undetermined, warnings = _theta_covariance(summary, names, s2, inflation)
 
     # physical values and their covariance (delta method through the transforms)
     cov = dphys @ cov_theta @ dphys.T
     check_finite(problem.logs, "the fit's covariance", cov)
     stderr = np.sqrt(np.clip(np.diag(cov), 0, None))
     stderr[undetermined] = np.nan
-    corr = _correlation(cov[:problem.par.size, :problem.par.size])
-    model_names = problem.par.names
-    for i in range(len(model_names)):
-        for j in range(i + 1, len(model_names)):
-            if abs(corr[i, j]) > _CORRELATION_WARNING and not (undetermined[i] or undetermined[j]):
-                warnings.append(
-                    f"{model_names[i]} and {model_names[j]} are strongly correlated "
-                    f"(r = {corr[i, j]:+.3f}): the data determine mainly a combination of "
-                    "them, so their separate values are uncertain")
+    warnings += _correlation_warnings(cov[:problem.par.size, :problem.par.size],
+                                      problem.par.names, undetermined)
     if rho >= _LAG1_CAP:
         warnings.append(f"the residuals follow a slow systematic misfit, not noise (lag-1 r "
                         f"at its cap {_LAG1_CAP}): the standard errors carry the capped AR(1) "
@@ -129,12 +108,9 @@ def _summarise(problem: Problem, theta, *, converged: bool, message: str, steps:
 
     # derived quantities at the first log's operating point (per-log chamber stiffness below)
     var0 = np.einsum("ij,jk,ik->i", g0, cov_theta, g0)
-    derived = {}
-    for k, name in enumerate(DERIVED):
-        err = math.sqrt(max(var0[k], 0.0))
-        if np.any(undetermined & (np.abs(g0[k]) > 0)):
-            err = float("nan")
-        derived[name] = (float(d0[k]), err)
+    derived = {name: (float(d0[k]), float("nan") if np.any(undetermined & (np.abs(g0[k]) > 0))
+                      else math.sqrt(max(var0[k], 0.0)))
+               for k, name in enumerate(DERIVED)}
 
     warnings += implausible(problem, values, derived)
     identifiability = _identifiability(problem, summary,
@@ -145,9 +121,67 @@ def _summarise(problem: Problem, theta, *, converged: bool, message: str, steps:
         derived[name] = (derived[name][0], float("nan"))
 
     model, nuis = problem.unpack_physical(values)
+    per_log, raw_sq, raw_n = _per_log(problem, per_log_pred, summary, model, nuis)
+    k = n_par
+    n = max(n_data, 1)
+    aic = n * math.log(max(cost, 1e-300) / n) + 2 * k
+    bic = n * math.log(max(cost, 1e-300) / n) + k * math.log(n)
+    fixed = {name: v for name, v in Parameterization(problem.model).values(model).items()
+             if name in problem.par_fixed}
+    return FitResult(
+        model=model, names=tuple(names), values=values, stderr=stderr, covariance=cov,
+        units=problem.par.units(),
+        fixed=fixed, derived=derived, per_log=per_log, converged=converged, message=message,
+        steps=steps, solver=solver, rms_N=math.sqrt(raw_sq / max(raw_n, 1)), cost=cost,
+        n_data=n_data, n_params=n_par, aic=aic, bic=bic, residual_autocorrelation=rho,
+        warnings=tuple(warnings), identifiability=identifiability,
+        files=tuple(str(log.path) if log.path else log.name for log in problem.logs),
+        starts=starts, theta=np.asarray(theta), problem=problem)
+
+
+def _theta_covariance(summary: _Summary, names: Sequence[str], s2: float, inflation: float
+                      ) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """The covariance of ``theta`` (the residual variance ``s2`` times its AR(1)
+    ``inflation`` times ``(J^T J)^-1``, plus the
+    turning-point errors propagated through the scan) from the SVD of ``J``'s triangular
+    factor, the entries it leaves undetermined, and a warning naming each undetermined
+    combination (its directions are not inverted)."""
+    _, sv, vt = np.linalg.svd(summary.r_factor, full_matrices=False)
+    keep = sv > _SINGULAR * sv[0] if sv.size else np.zeros(0, bool)
+    inv = np.where(keep, 1.0 / np.where(keep, sv, 1.0) ** 2, 0.0)
+    jtj_inv = (vt.T * inv) @ vt
+    cov_theta = jtj_inv * s2 * inflation + jtj_inv @ summary.eiv_gram @ jtj_inv
+    warnings = []
+    undetermined = np.zeros(len(names), dtype=bool)
+    for j in np.flatnonzero(~keep):
+        involved = np.flatnonzero(np.abs(vt[j]) > 0.3)
+        undetermined[involved] = True
+        combo = " + ".join(f"{vt[j][i]:+.2f} {names[i]}" for i in involved)
+        warnings.append(f"the data do not determine the combination {combo}; their standard "
+                        "errors are not reported (fix one of them or add excitation)")
+    return cov_theta, undetermined, warnings
+
+
+def _correlation_warnings(cov: np.ndarray, names: Sequence[str],
+                          undetermined: np.ndarray) -> list[str]:
+    """A warning for each pair of determined model parameters correlated beyond
+    :data:`_CORRELATION_WARNING` (``cov``: the model parameters' covariance)."""
+    corr = _correlation(cov)
+    return [f"{names[i]} and {names[j]} are strongly correlated (r = {corr[i, j]:+.3f}): the "
+            "data determine mainly a combination of them, so their separate values are "
+            "uncertain"
+            for i in range(len(names)) for j in range(i + 1, len(names))
+            if abs(corr[i, j]) > _CORRELATION_WARNING and not (undetermined[i]
+                                                                or undetermined[j])]
+
+
+def _per_log(problem: Problem, predictions, summary: _Summary, model, nuisances
+             ) -> tuple[list[dict[str, object]], float, int]:
+    """fit.json's ``per_log`` entries, and the sum of squared force residuals (N^2) over the
+    fitted samples of all logs with their count."""
     per_log = []
     raw_sq, raw_n = 0.0, 0
-    for i, (log, pred) in enumerate(zip(problem.logs, per_log_pred)):
+    for i, (log, pred) in enumerate(zip(problem.logs, predictions)):
         w = problem.sample_weights[i] > 0
         res = (pred["force"] - np.asarray(log.force))[w]
         raw_sq += float(res @ res)
@@ -167,24 +201,10 @@ def _summarise(problem: Problem, theta, *, converged: bool, message: str, steps:
                                            * marginal_scale(problem.displacement_rho[i]) * 1e6),
                  "displacement_noise_rho": problem.displacement_rho[i],
                  "denoised_displacement": problem.denoised[i]}
-        entry |= {key: p.to_display(float(nuis[name][i]))
-                  for name, (key, p) in PER_LOG_NUISANCES.items() if name in nuis}
+        entry |= {key: p.to_display(float(nuisances[name][i]))
+                  for name, (key, p) in PER_LOG_NUISANCES.items() if name in nuisances}
         per_log.append(entry)
-    k = n_par
-    n = max(n_data, 1)
-    aic = n * math.log(max(cost, 1e-300) / n) + 2 * k
-    bic = n * math.log(max(cost, 1e-300) / n) + k * math.log(n)
-    fixed = {name: v for name, v in Parameterization(problem.model).values(model).items()
-             if name in problem.par_fixed}
-    return FitResult(
-        model=model, names=tuple(names), values=values, stderr=stderr, covariance=cov,
-        units=problem.par.units(),
-        fixed=fixed, derived=derived, per_log=per_log, converged=converged, message=message,
-        steps=steps, solver=solver, rms_N=math.sqrt(raw_sq / max(raw_n, 1)), cost=cost,
-        n_data=n_data, n_params=n_par, aic=aic, bic=bic, residual_autocorrelation=rho,
-        warnings=tuple(warnings), identifiability=identifiability,
-        files=tuple(str(log.path) if log.path else log.name for log in problem.logs),
-        starts=starts, theta=np.asarray(theta), problem=problem)
+    return per_log, raw_sq, raw_n
 
 
 def _identifiability(problem: Problem, summary: _Summary,

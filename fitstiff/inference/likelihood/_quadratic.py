@@ -127,7 +127,9 @@ class _Quadratic(NoiseModel):
             np.concatenate(parts, axis=1), np.r_[np.ones(m), np.zeros(k)],
             np.concatenate(series).astype(int), layout, linear=k))
 
-    def _squares(self, residuals, layout: Layout):
+    def squares(self, residuals, layout: Layout):
+        """The per-series sums of squares of the whitened ``residuals``, with the turning
+        points' errors and the integrated columns (if any) marginalised."""
         return self._solved(residuals, layout)[1]
 
     def _solved(self, residuals, layout: Layout):
@@ -171,7 +173,7 @@ class _Quadratic(NoiseModel):
         return 0.5 * (g + g.T)
 
     def log_likelihood(self, residuals, layout: Layout):
-        return self.squares_likelihood(self._squares(residuals, layout), layout)
+        return self.squares_likelihood(self.squares(residuals, layout), layout)
 
     def squares_likelihood(self, q, layout: Layout):
         """The log-likelihood (up to a constant) of the per-series sums of squares ``q``

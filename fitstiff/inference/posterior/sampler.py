@@ -49,6 +49,7 @@ _PREDICTIVE_POINTS = 2000   # at most this many samples per log in the predictiv
 
 
 # -- the sampler ------------------------------------------------------------------------------
+# long: its docstring documents its 20 options; the body is the sampler's phases in order
 def sample_posterior(logs_or_fit: Sequence[Log] | FitResult, model: Model | str | None = None,
                      *, fix: Mapping[str, float | None] | Iterable[str] = (),
                      fit_options: Mapping[str, object] | None = None,
@@ -142,14 +143,7 @@ def sample_posterior(logs_or_fit: Sequence[Log] | FitResult, model: Model | str 
             fit_result = fit_problem(problem, **_solver_options(fit_options or {}))
             if release:
                 release_compiled()
-        if not fit_result.converged:
-            warnings.append(f"the least-squares start did not converge "
-                            f"({fit_result.message}); the burn-in may be long")
-        if not fit_result.identifiability.identifiable:
-            ident = fit_result.identifiability
-            warnings.append(f"the data do not identify the seal: {ident.reason} The posterior "
-                            f"of {', '.join(ident.parameters + ident.derived)} reflects the "
-                            "prior and the model's assumptions, not a measurement")
+        warnings += _start_warnings(fit_result)
         theta_start = np.asarray(fit_result.theta)
     coordinates = Coordinates.of(problem, theta_start, integrated, layout)
     noise, turning = prepared_noise(problem, noise, theta_start, layout, linear=coordinates.linear)
@@ -160,25 +154,17 @@ def sample_posterior(logs_or_fit: Sequence[Log] | FitResult, model: Model | str 
                         "turning points out: intervals may be too narrow")
     log_prob = LogPosterior(problem, noise, prior_set, batch=(walkers + 1) // 2,
                             coordinates=coordinates, centre=theta_start)
-    ndim = coordinates.sampled.size
     emcee_backend = store.backend if store else emcee.backends.Backend()
     if not resume:
-        emcee_backend.reset(walkers, ndim)
+        emcee_backend.reset(walkers, coordinates.sampled.size)
         if store:
             store.write_settings(stored_as, settings=noise, theta_start=theta_start)
-    sampler = emcee.EnsembleSampler(walkers, ndim,
+    sampler = emcee.EnsembleSampler(walkers, coordinates.sampled.size,
                                     log_prob.rows if log_prob.blobs else log_prob,
                                     vectorize=True, backend=emcee_backend,
                                     moves=MOVES[moves]())
-    if resume:
-        state = sampler.get_last_sample()
-    else:
-        coords, rows = _start(fit_result, problem, log_prob, walkers,
-                              np.random.default_rng(seeds[0]), prior_set)
-        state = emcee.State(coords, log_prob=rows[:, 0],
-                            blobs=rows[:, 1:] if log_prob.blobs else None,
-                            random_state=np.random.RandomState(
-                                np.random.MT19937(seeds[1])).get_state())
+    state = (sampler.get_last_sample() if resume else
+             _start_state(fit_result, problem, log_prob, walkers, prior_set, seeds))
     try:
         check = run_chunks(sampler, state, names=coordinates.names(problem), steps=steps,
                             tau_multiple=tau_multiple, check_every=check_every,
@@ -193,6 +179,32 @@ def sample_posterior(logs_or_fit: Sequence[Log] | FitResult, model: Model | str 
                     coordinates=coordinates, fit=fit_result, thin=thin, draws=draws,
                     tau_multiple=tau_multiple, moves=moves,
                     rng=np.random.default_rng(seeds[2]), warnings=warnings, store=store)
+
+
+def _start_warnings(fit_result: FitResult) -> list[str]:
+    """What a posterior started from ``fit_result`` must say about its start."""
+    warnings = []
+    if not fit_result.converged:
+        warnings.append(f"the least-squares start did not converge "
+                        f"({fit_result.message}); the burn-in may be long")
+    if not fit_result.identifiability.identifiable:
+        ident = fit_result.identifiability
+        warnings.append(f"the data do not identify the seal: {ident.reason} The posterior "
+                        f"of {', '.join(ident.parameters + ident.derived)} reflects the "
+                        "prior and the model's assumptions, not a measurement")
+    return warnings
+
+
+def _start_state(fit_result: FitResult, problem: Problem, log_prob: LogPosterior, walkers: int,
+                 prior_set: Priors, seeds) -> emcee.State:
+    """The walkers' start around the fit (``seeds[0]`` draws the ball, ``seeds[1]`` seeds
+    the sampler), with their log-posteriors and blobs."""
+    coords, rows = _start(fit_result, problem, log_prob, walkers,
+                          np.random.default_rng(seeds[0]), prior_set)
+    return emcee.State(coords, log_prob=rows[:, 0],
+                       blobs=rows[:, 1:] if log_prob.blobs else None,
+                       random_state=np.random.RandomState(
+                           np.random.MT19937(seeds[1])).get_state())
 
 
 def _check_options(**options) -> None:
