@@ -25,6 +25,8 @@ REALDATA = REPO / "data" / "real" / "oring"
 #: past this many memory maps a worker drops JAX's in-memory compilation caches (the kernel
 #: refuses new maps at vm.max_map_count, 65 530 by default)
 _MAX_MAPS = 30_000
+#: past this resident size (MB) a worker drops them too, and returns the freed heap
+_MAX_RSS_MB = 1_800
 
 
 def pytest_configure(config):
@@ -39,22 +41,54 @@ def pytest_configure(config):
         jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 
 
+#: with FITSTIFF_SUITE_MEMORY: (peak MB, test) each time a test raised this process's peak
+_PEAKS: list[tuple[float, str]] = []
+
+
+def _peak_mb() -> float:
+    import resource
+
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
+def pytest_sessionfinish(session, exitstatus):
+    """With ``FITSTIFF_SUITE_MEMORY=DIR``, each test process writes its peak resident set
+    size (MB) to ``DIR/<worker>.txt``, and the tests that raised it (the suite's memory per
+    pytest worker, README)."""
+    folder = os.environ.get("FITSTIFF_SUITE_MEMORY")
+    if folder:
+        worker = os.environ.get("PYTEST_XDIST_WORKER", "main")
+        Path(folder).mkdir(parents=True, exist_ok=True)
+        raised = "".join(f"{mb:.0f} MB after {test}\n" for mb, test in _PEAKS)
+        (Path(folder) / f"{worker}.txt").write_text(f"{_peak_mb():.0f}\n{raised}")
+
+
 def pytest_runtest_teardown(item, nextitem):
     """Executables read back from the persistent cache stay in JAX's in-memory caches with
     their memory maps (measured: 19 000 maps after 7 min of tests/test_diagnosis.py, about
     4 000 without the cache; 13 528 -> 1 506 after ``jax.clear_caches()``). A worker of the
     full suite passed the kernel's limit and segfaulted in XLA while loading one more, so the
-    caches are dropped past :data:`_MAX_MAPS` (the persistent cache on disk stays)."""
+    caches are dropped past :data:`_MAX_MAPS` (the persistent cache on disk stays). They are
+    dropped too, and the freed heap handed back, once the worker holds more than
+    :data:`_MAX_RSS_MB` (the suite's worker peaked at 4.3 GB keeping them all, issue 35)."""
+    if os.environ.get("FITSTIFF_SUITE_MEMORY") and _peak_mb() > (
+            _PEAKS[-1][0] if _PEAKS else 0.0) + 100:
+        _PEAKS.append((_peak_mb(), item.nodeid))
     try:
         with open("/proc/self/maps", "rb") as maps:
             count = sum(1 for _ in maps)
+        with open("/proc/self/statm", "rb") as statm:
+            rss_mb = int(statm.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
     except OSError:                  # not Linux: no such limit to watch
         return
-    if count > _MAX_MAPS:
+    if count > _MAX_MAPS or rss_mb > _MAX_RSS_MB:
         import gc
+
+        from fitstiff.malloc import trim
 
         jax.clear_caches()
         gc.collect()
+        trim()
 
 
 def run_benchmark(script: str, *args, timeout: float = 900) -> str:

@@ -66,7 +66,7 @@ def test_turning_point_errors_allow_for_correlated_displacement_noise():
     in the posterior-calibration datasets: read as white noise (rho = 0) the reported errors
     are far below the scatter; with the correlation estimated from the data
     (fitstiff.signal.noise.noise_floor) they describe it."""
-    from fitstiff.segments.segmentation import estimate_noise
+    from fitstiff.signal.noise import estimate_noise
     from fitstiff.signal.noise import noise_floor
 
     t, x = TriangleCycles(amplitudes_mm=(0.05, 0.2, 0.5, 1.0), rate_mm_s=1.0).sample(200.0)

@@ -25,7 +25,8 @@ from conftest import REALDATA
 
 from fitstiff.errors import InputError
 from fitstiff.io.log import Log, Rig
-from fitstiff.segments.segmentation import REGIONS, SPEED_BANDS, estimate_noise, segment
+from fitstiff.segments.segmentation import REGIONS, SPEED_BANDS, segment
+from fitstiff.signal.noise import estimate_noise
 
 FS = 1000.0          # Hz
 SIGMA = 5e-6         # m: 5 % of the smallest amplitude, 0.1 mm

@@ -19,11 +19,13 @@ from fitstiff.diagnosis.screen import Score, screen
 from fitstiff.diagnosis.select import MIN_GAIN, FoldFit, HeldOut
 from fitstiff.diagnosis.supermodel import SuperProblem
 from fitstiff.physics.params import to_display
+from fitstiff.physics.terms import FrictionBase, MaxwellSlip
 
 __all__ = ["Start", "Tried", "FoldStarts", "judge", "on_bound", "refit_start", "maxwell_shape",
            "fold_fits", "at_null"]
 
-_MAXWELL_SHAPE = (0.25, 0.5, 1.0, 2.0)   # slip displacements, multiples of Fc / sigma0
+_MAXWELL_SHAPE = (0.25, 0.5, 1.0, 2.0)   # slip displacements, multiples of breakaway / slope
+_PAPER_BREAKAWAY, _PAPER_SLOPE = 18.0, 40e3     # N, N/m: the paper's seal
 #: longer one-step moves a refit may start from (:func:`refit_start`)
 _STEP_FACTORS = (4.0, 16.0, 64.0)
 #: a fitted parameter within this share of its range (or of its size, for a one-sided
@@ -205,13 +207,16 @@ def maxwell_shape(sp: SuperProblem, theta, hold, active) -> np.ndarray:
     entries = sp.elements("maxwell_slip", tested=False)
     if entries.size == 0:
         return hold
-    names = sp.problem.par.names
     x = np.asarray(sp.physical(theta, hold, sp.model_mask(active)))
-    fc = next((x[names.index(n)] for n in ("Fc", "dahl.Fc", "lugre.Fc") if n in names), 18.0)
-    sigma0 = next((x[names.index(n)] for n in ("sigma0", "dahl.sigma0", "lugre.sigma0")
-                   if n in names), 40e3)
+    model = sp.problem.par.physical_to_model(x, sp.problem.model)
+    # the baseline's own seal answers: its breakaway (N) and pre-sliding slope (N/m); without
+    # a friction base, the paper's seal
+    base = next((t for t in model.terms_of(FrictionBase) if not isinstance(t, MaxwellSlip)),
+                None)
+    breakaway, slope = ((float(base.breakaway()), float(base.presliding_slope()))
+                        if base is not None else (_PAPER_BREAKAWAY, _PAPER_SLOPE))
     hold = np.array(hold)
-    hold[entries] = np.asarray(_MAXWELL_SHAPE) * fc / sigma0
+    hold[entries] = np.asarray(_MAXWELL_SHAPE) * breakaway / slope
     return hold
 
 

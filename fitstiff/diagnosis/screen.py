@@ -43,7 +43,7 @@ from fitstiff.physics.terms import TERMS
 from fitstiff.signal.noise import NoiseFloor, noise_floor
 
 __all__ = ["Score", "screen", "collinear_groups", "detectability", "SHAPE_GRIDS", "POWER",
-           "COLLINEAR_TIE"]
+           "COLLINEAR_TIE", "chi2_logsf"]
 
 POWER = 0.8
 #: shape parameters scanned by the screen (SI); the first value starts the model
@@ -99,7 +99,7 @@ def _ar1_filter(a: np.ndarray, series, rhos) -> np.ndarray:
     return out
 
 
-def series_rhos(sp: SuperProblem, noise: Sequence[NoiseFloor]) -> list[float]:
+def _series_rhos(sp: SuperProblem, noise: Sequence[NoiseFloor]) -> list[float]:
     """AR(1) coefficient per residual series: the log's force noise, or its pressure noise."""
     out = []
     for s in sp.series:
@@ -134,7 +134,7 @@ def screen(sp: SuperProblem, theta: np.ndarray, hold: np.ndarray, *, active: Seq
     free_model = sp.model_mask(active)
     hold = np.array(hold, dtype=float)
     x = np.asarray(sp.physical(theta, hold, free_model))
-    rhos = series_rhos(sp, noise)
+    rhos = _series_rhos(sp, noise)
     r, jac = sp.jacobian(x, theta)
     w = np.asarray(weights)
     keep = w > 0

@@ -41,7 +41,7 @@ from fitstiff.physics.terms import EFFECTS, FRICTION_BASES, TERMS
 from fitstiff.physics.terms.base import Modifier, SeriesTerm
 from fitstiff.physics.terms.chamber import Chamber
 
-__all__ = ["CANDIDATES", "SuperProblem", "candidate_names", "spec_token"]
+__all__ = ["CANDIDATES", "SuperProblem", "candidate_names", "spec_token", "Owner"]
 
 #: every effect the diagnosis can name (DESIGN §3), ``chamber`` for friction-only baselines
 CANDIDATES = EFFECTS + ("chamber",)

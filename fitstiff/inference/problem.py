@@ -43,8 +43,8 @@ from fitstiff.physics.terms import FrictionBase
 from fitstiff.segments.denoise import (chatters, denoise_displacement, reversal_samples,
                                        segment_velocity, smooth_acceleration, smooth_force,
                                        turning_points)
-from fitstiff.segments.segmentation import Segmentation, estimate_noise, segment
-from fitstiff.signal.noise import marginal_scale, noise_floor
+from fitstiff.segments.segmentation import Segmentation, segment
+from fitstiff.signal.noise import estimate_noise, marginal_scale, noise_floor
 
 __all__ = ["Problem", "compiled_batch", "ResidualSeries", "channel_noise", "CHANNELS"]
 

@@ -31,7 +31,7 @@ from fitstiff.io.log import Log, Rig
 from fitstiff.signal.monotone import Runs, find_runs
 
 __all__ = ["Drive", "make_drive", "drive_from_log", "chamber_log_ratios", "log_volume_span",
-           "CHAMBER_MODES"]
+           "CHAMBER_MODES", "log_volume_ratios"]
 
 CHAMBER_MODES = ("measured", "vented", "closed")
 

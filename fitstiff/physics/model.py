@@ -31,7 +31,7 @@ from fitstiff.physics.terms import (TERMS, Chamber, ForceSource, InputTerm, Modi
                                     SeriesTerm, Step, Term)
 
 __all__ = ["Model", "Needs", "Prediction", "build_model", "parse_spec", "model_for_logs",
-           "model_needs", "parse_fix", "DEFAULT_MODEL"]
+           "model_needs", "parse_fix", "DEFAULT_MODEL", "time_steps", "difference_acceleration"]
 
 #: the model of the paper's cylinder and every command's default: the chamber's gas spring and a
 #: Dahl pre-sliding spring

@@ -39,8 +39,8 @@ from fitstiff.physics.drive import Drive
 from fitstiff.physics.model import Model
 from fitstiff.physics.params import Parameterization
 
-__all__ = ["Noise", "Rival", "Outputs", "outputs", "noncentrality", "detectable_size",
-           "POWER", "LEVEL"]
+__all__ = ["Noise", "Rival", "Outputs", "outputs", "noncentrality", "detectable_size", "POWER",
+           "LEVEL", "sizes"]
 
 #: power and two-sided level at which :func:`detectable_size` states a size (the
 #: diagnosis' detectability uses the same)

@@ -6,7 +6,7 @@ far as it should, and a fit compensates with a larger breakaway and a smaller sl
 motion between two genuine reversals is monotone, so the estimate used here is:
 
 1. estimate the displacement noise from the data
-   (:func:`fitstiff.segments.segmentation.estimate_noise`) and find the genuine reversals with the
+   (:func:`fitstiff.signal.noise.estimate_noise`) and find the genuine reversals with the
    hysteresis rule of the segmentation (threshold a multiple of that noise);
 2. estimate each turning point (its sample and its extreme displacement) by a **local fit**
    of the samples around it (:func:`turning_points`): the raw extreme sample overshoots the
@@ -132,7 +132,7 @@ def turning_points(x: np.ndarray, reversals: np.ndarray, *, noise: float | None 
     the fitted curve's extremum and the sample nearest to it. Reversals too close to each
     other or to the ends for a window keep the raw extreme sample and the noise as error.
 
-    ``noise`` is the white-equivalent level (:func:`~fitstiff.segments.segmentation.estimate_noise`)
+    ``noise`` is the white-equivalent level (:func:`~fitstiff.signal.noise.estimate_noise`)
     and ``rho`` the lag-1 correlation of the noise: the errors are the fit's under AR(1)
     noise (the sandwich ``h^T R h`` with ``R_ij = rho^|i-j|``) of marginal level
     ``noise * marginal_scale(rho)``. On the calibration datasets' AR(1) displacement noise
@@ -144,7 +144,7 @@ def turning_points(x: np.ndarray, reversals: np.ndarray, *, noise: float | None 
     n = x.shape[0]
     raw = _extrema(x, reversals)
     if noise is None:
-        from fitstiff.segments.segmentation import estimate_noise
+        from fitstiff.signal.noise import estimate_noise
         noise = estimate_noise(x)
     index, value = raw.copy(), x[raw].copy()
     error = np.full(raw.shape, float(noise) * marginal_scale(rho))

@@ -30,8 +30,8 @@ import math
 
 import numpy as np
 
-__all__ = ["NoiseFloor", "RHO_GRID", "ar1_shape", "marginal_scale", "noise_floor",
-           "pooled_noise_floor", "robust_var"]
+__all__ = ["NoiseFloor", "RHO_GRID", "ar1_shape", "estimate_noise", "marginal_scale",
+           "noise_floor", "pooled_noise_floor", "robust_var"]
 
 _MAD = 1.4826
 _RHO_MIN, _RHO_MAX = -0.9, 0.95
@@ -60,7 +60,7 @@ class NoiseFloor:
 def marginal_scale(rho: float) -> float:
     """Marginal standard deviation of AR(1) noise with lag-1 correlation ``rho`` per unit of
     the white-noise level read from its lag-1 second differences (``sqrt(D_1 / 6)``, e.g.
-    :func:`~fitstiff.segments.segmentation.estimate_noise`): ``sqrt(6 / (2 (1 - rho)(3 - rho)))``;
+    :func:`estimate_noise`): ``sqrt(6 / (2 (1 - rho)(3 - rho)))``;
     1 for white noise, 2.2 at ``rho = 0.73``."""
     return math.sqrt(3.0 / ((1.0 - rho) * (3.0 - rho)))
 
@@ -92,8 +92,8 @@ def noise_floor(values: np.ndarray, *, mask: np.ndarray | None = None) -> NoiseF
 
     The robust variances ``D_k`` of the lag-``k`` second differences, ``k = 1..4``, are fitted
     by ``s**2 * 2 (1 - rho**k)(3 - rho**k) + c k**4`` in relative error (a grid over ``rho``;
-    ``s**2, c >= 0`` by least squares for each). ``mask``: samples to use (a difference counts when its three
-    samples are all in the mask); all by default.
+    ``s**2, c >= 0`` by least squares for each). ``mask``: samples to use (a difference counts
+    when its three samples are all in the mask); all by default.
     """
     f = np.asarray(values, dtype=np.float64)
     keep = np.ones(f.size, dtype=bool) if mask is None else np.asarray(mask, dtype=bool)
@@ -141,3 +141,18 @@ def pooled_noise_floor(logs, masks) -> tuple[list[NoiseFloor], float]:
     counts = np.array([np.count_nonzero(m) for m in masks], dtype=float)
     sig2 = np.array([f.sigma**2 for f in floors])
     return floors, math.sqrt(float(np.sum(counts * sig2) / counts.sum()))
+
+
+def estimate_noise(displacement: np.ndarray) -> float:
+    """Gaussian-equivalent standard deviation of the white noise on a sampled channel
+    (``displacement``, or any other), from its lag-1 second differences: the quick level
+    that :func:`noise_floor` refines with the correlation of the noise.
+
+    ``1.4826 * MAD(diff(x, 2)) / sqrt(6)``: robust to spikes and to the motion itself (a ramp
+    has zero second difference, a turning point affects a handful of samples).
+    """
+    x = np.asarray(displacement, dtype=np.float64)
+    if x.size < 3:
+        return 0.0
+    d2 = np.diff(x, 2)
+    return float(1.4826 * np.median(np.abs(d2 - np.median(d2))) / math.sqrt(6.0))

@@ -25,7 +25,7 @@ from fitstiff.physics.model import Model
 __all__ = ["fit", "fit_problem", "fit_problems", "SOLVERS"]
 
 
-class NormalEquationsLM(NamedTuple):
+class _NormalEquationsLM(NamedTuple):
     """fitstiff's Levenberg-Marquardt in its normal-equations form
     (:func:`fitstiff.inference.lm.levenberg_marquardt` ``normal=True``): no Jacobian kept between
     steps. ``"lm"`` runs it when the Jacobian would exceed :data:`LEAN_JACOBIAN_MB`."""
@@ -36,7 +36,7 @@ class NormalEquationsLM(NamedTuple):
 
 SOLVERS = {
     "lm": lambda rtol, atol: optx.LevenbergMarquardt(rtol=rtol, atol=atol),
-    "lm-normal": NormalEquationsLM,
+    "lm-normal": _NormalEquationsLM,
     "dogleg": lambda rtol, atol: optx.Dogleg(rtol=rtol, atol=atol),
     "gauss-newton": lambda rtol, atol: optx.GaussNewton(rtol=rtol, atol=atol),
     "bfgs": lambda rtol, atol: optx.BFGS(rtol=rtol, atol=atol),
@@ -104,11 +104,11 @@ def _solve(p: Problem, theta0, *, solver: str, rtol: float, atol: float, max_ste
     """The least-squares solve from ``theta0``: ``(theta, status, steps, cost)``
     (compiled by :meth:`~fitstiff.inference.problem.Problem.compiled`)."""
     method = SOLVERS[solver](rtol, atol)
-    if isinstance(method, NormalEquationsLM):
+    if isinstance(method, _NormalEquationsLM):
         sol = lm.levenberg_marquardt(p.residuals, theta0, rtol=rtol, atol=atol,
                                      max_steps=max_steps, normal=True)
         return sol.value, sol.status, sol.steps, sol.cost
-    residuals = materialised_jacobian(p.residuals)
+    residuals = _materialised_jacobian(p.residuals)
     sol = optx.least_squares(lambda theta, _: residuals(theta), method, theta0,
                              max_steps=max_steps, throw=False)
     r = p.residuals(sol.value)
@@ -118,7 +118,7 @@ def _solve(p: Problem, theta0, *, solver: str, rtol: float, atol: float, max_ste
 def _solver(problem: Problem, solver: str, rtol: float, atol: float, max_steps: int):
     """The least-squares solve of ``problem``, ``theta0 -> _Run``, compiled once per
     settings and reused across starts and calls."""
-    own = SOLVERS[solver] is NormalEquationsLM
+    own = SOLVERS[solver] is _NormalEquationsLM
     compiled = problem.compiled(_solve, solver=solver, rtol=rtol, atol=atol,
                                 max_steps=max_steps)
 
@@ -144,7 +144,7 @@ def _lean(problem: Problem, solver: str) -> str:
     return "lm-normal" if solver == "lm" and _is_lean(problem) else solver
 
 
-def materialised_jacobian(f):
+def _materialised_jacobian(f):
     """``f`` whose JVP multiplies by a Jacobian built once per point with ``jacfwd``.
 
     The solvers linearise the residual function and then apply the linear map once per
@@ -211,7 +211,7 @@ def fit_problems(problems: Sequence[Problem], *, solver: str = "lm", max_steps: 
     results: list[FitResult | None] = [None] * len(problems)
     for index in groups.values():
         chosen = _lean(problems[index[0]], solver)
-        own = SOLVERS[chosen] is NormalEquationsLM
+        own = SOLVERS[chosen] is _NormalEquationsLM
         for at in range(0, len(index), lanes):
             chunk = [problems[i] for i in index[at:at + lanes]]
             theta0 = jnp.stack([p.pack(*initial_guess(p)) for p in chunk])

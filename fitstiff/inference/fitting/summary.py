@@ -399,12 +399,9 @@ def implausible(problem: Problem, values: np.ndarray,
                                "the motion that determines it)")
     largest = max(float(np.max(np.abs(np.asarray(log.force)))) for log in problem.logs)
     breakaway = derived.get("breakaway_N", (math.nan, math.nan))[0]
-    sliding, static = free.get("Fc"), free.get("Fs")
-    if sliding is not None and static is not None and static < 0.9 * sliding:
-        out.append(f"the static friction Fs {static:.4g} N (the breakaway) is below the "
-                   f"sliding friction Fc {sliding:.4g} N: not seal physics; the logs do not "
-                   "determine the friction near rest (record slow starts from standstill) or "
-                   "the model does not fit them")
+    model, _ = problem.unpack_physical(values)
+    for term in model.terms_of(FrictionBase):       # the seal's own physics (LuGre: Fs >= Fc)
+        out += term.implausible()
     if math.isfinite(breakaway) and abs(breakaway) > _BREAKAWAY_EXCESS * largest:
         out.append(f"the breakaway force {breakaway:.4g} N is more than {_BREAKAWAY_EXCESS:g} "
                    f"times the largest measured force ({largest:.4g} N): the logs do not "

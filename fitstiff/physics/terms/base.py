@@ -211,6 +211,10 @@ class FrictionBase(ForceSource):
     def breakaway(self):
         """Largest friction force (N) the seal holds before gross sliding."""
 
+    def implausible(self) -> list[str]:
+        """What in this seal's values is not seal physics, in words (none by default)."""
+        return []
+
 
 class Modifier(Term):
     """Role: changes the terms of role :attr:`targets` instead of adding a force."""

@@ -173,6 +173,17 @@ class LuGre(FrictionBase):
     def breakaway(self):
         return self.Fs
 
+    def implausible(self) -> list[str]:
+        """A static level below 0.9 times the sliding one: the breakaway below the sliding
+        friction."""
+        sliding, static = float(self.Fc), float(self.Fs)
+        if static < 0.9 * sliding:
+            return [f"the static friction Fs {static:.4g} N (the breakaway) is below the "
+                    f"sliding friction Fc {sliding:.4g} N: not seal physics; the logs do not "
+                    "determine the friction near rest (record slow starts from standstill) or "
+                    "the model does not fit them"]
+        return []
+
 
 class MaxwellSlip(FrictionBase):
     name = "maxwell_slip"

@@ -15,6 +15,8 @@ from fitstiff.present.report.kinds import Report
 from fitstiff.present.report.text import Verdict, fmt, paragraph, per_log_noise, html_table
 from fitstiff.units import MM
 
+__all__ = ["diagnosis_report"]
+
 
 
 def diagnosis_report(run: RunDirectory, *, draws: int) -> Report:

@@ -24,7 +24,8 @@ from fitstiff.present.reopen import Chain, Curves, RunDirectory, read_json
 from fitstiff.present.report.text import fmt, paragraph, html_table
 from fitstiff.units import MM
 
-__all__ = ["ReportFigure"]
+__all__ = ["ReportFigure", "Section", "file_stem", "model_sections", "corner_figure",
+           "chain_figures", "truth_of"]
 
 
 # -- figures --------------------------------------------------------------------------------
@@ -60,7 +61,7 @@ def _seal(curves: Curves, i: int) -> np.ndarray | None:
     return np.sum(seals, axis=0) if seals else None
 
 
-def loop_figure(problem: Problem, curves: Curves, i: int) -> ReportFigure:
+def _loop_figure(problem: Problem, curves: Curves, i: int) -> ReportFigure:
     log, seg = problem.logs[i], problem.segmentations[i]
     band = curves.band[i] if curves.band else None
     used = _used(problem, i)
@@ -108,7 +109,7 @@ def loop_figure(problem: Problem, curves: Curves, i: int) -> ReportFigure:
     return ReportFigure(f"loop_{file_stem(log.name)}", caption, fig)
 
 
-def residual_figure(problem: Problem, curves: Curves, i: int) -> ReportFigure:
+def _residual_figure(problem: Problem, curves: Curves, i: int) -> ReportFigure:
     log, seg = problem.logs[i], problem.segmentations[i]
     used = _used(problem, i)
     views = [("displacement", "region"), ("displacement", "direction")]
@@ -130,7 +131,7 @@ def residual_figure(problem: Problem, curves: Curves, i: int) -> ReportFigure:
     return ReportFigure(f"residuals_{file_stem(log.name)}", caption, fig)
 
 
-def friction_section(problem: Problem, curves: Curves) -> Section | None:
+def _friction_section(problem: Problem, curves: Curves) -> Section | None:
     """Sliding friction per log and pressure, measured (force minus the model's other terms)
     and modelled; ``None`` when the model has no seal."""
     rows, points = [], []
@@ -166,7 +167,7 @@ def friction_section(problem: Problem, curves: Curves) -> Section | None:
     return Section("Friction against pressure", html=html, figures=(figure,))
 
 
-def stroke_figure(problem: Problem, model: Model) -> ReportFigure | str:
+def _stroke_figure(problem: Problem, model: Model) -> ReportFigure | str:
     """Chamber against seal over the stroke at the highest supply pressure of the logs, or why
     it cannot be drawn."""
     rigs = [log.rig for log in problem.logs]
@@ -189,12 +190,12 @@ def stroke_figure(problem: Problem, model: Model) -> ReportFigure | str:
 def model_sections(problem: Problem, curves: Curves) -> list[Section]:
     """Loops, residuals and chamber against seal: every kind of report has them."""
     n = problem.n_logs
-    stroke = stroke_figure(problem, curves.model)
+    stroke = _stroke_figure(problem, curves.model)
     return [
-        Section("Loops", figures=tuple(loop_figure(problem, curves, i) for i in range(n))),
-        Section("Residuals", figures=tuple(residual_figure(problem, curves, i)
+        Section("Loops", figures=tuple(_loop_figure(problem, curves, i) for i in range(n))),
+        Section("Residuals", figures=tuple(_residual_figure(problem, curves, i)
                                             for i in range(n))),
-        *filter(None, [friction_section(problem, curves)]),
+        *filter(None, [_friction_section(problem, curves)]),
         Section("Chamber against seal over the stroke",
                  html=paragraph(stroke) if isinstance(stroke, str) else "",
                  figures=() if isinstance(stroke, str) else (stroke,)),

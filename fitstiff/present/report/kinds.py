@@ -13,6 +13,8 @@ from fitstiff.present.report.figures import (Section, chain_figures, corner_figu
 from fitstiff.present.report.text import (DEFINITIONS, Verdict, fit_tables, fit_verdict, log_table,
                                           paragraph, posterior_tables, posterior_verdict, quote)
 
+__all__ = ["Report", "fit_report", "posterior_report"]
+
 
 
 # -- the two kinds --------------------------------------------------------------------------

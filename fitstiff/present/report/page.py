@@ -22,7 +22,7 @@ from fitstiff.present.report.diagnosis import diagnosis_report
 from fitstiff.present.report.kinds import Report, fit_report, posterior_report
 from fitstiff.present.report.text import inputs_table, paragraph
 
-__all__ = ["FIGURES", "PLANNED", "REPORT", "REPORT_MANIFEST", "write_report"]
+__all__ = ["FIGURES", "PLANNED", "REPORT", "REPORT_MANIFEST", "write_report", "render_figure"]
 
 REPORT = "report.html"
 FIGURES = "figures"

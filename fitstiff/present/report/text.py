@@ -18,6 +18,11 @@ from fitstiff.io.log import Log
 from fitstiff.physics.derived import split_unit, to_display as derived_display
 from fitstiff.present.reopen import Z90, Curves, RunDirectory
 
+__all__ = ["fmt", "fmt_to", "paragraph", "html_table", "Verdict", "per_log_noise", "fit_verdict",
+           "not_identifiable", "posterior_verdict", "entries", "center", "fit_tables",
+           "posterior_tables", "value_pm", "log_table", "pressure_cell", "inputs_table", "quote",
+           "DEFINITIONS"]
+
 
 
 _POSTERIOR_RMS_EXCESS = 0.10    # median curve worse than least squares by more: say so

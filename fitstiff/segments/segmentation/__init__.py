@@ -49,11 +49,12 @@ from __future__ import annotations
 
 from fitstiff.segments.segmentation._regions import DEFAULT_PRESLIDING_RANGE
 from fitstiff.segments.segmentation._reversals import (NOISE_MULTIPLE, RESOLUTION_MULTIPLE,
-                                                       THRESHOLD_FLOOR, estimate_noise)
+                                                       THRESHOLD_FLOOR)
 from fitstiff.segments.segmentation._segment import (DEFAULT_SPEED_EDGES, DEFAULT_SPEED_WINDOW,
                                                      DEFAULT_STROKE_END_FRACTION, segment)
 from fitstiff.segments.segmentation._time import DEFAULT_MIN_PAUSE, standstill
 from fitstiff.segments.segmentation.result import REGIONS, SPEED_BANDS, Segmentation
+from fitstiff.signal.noise import estimate_noise   # its home; here for the segmentation's users
 
 __all__ = [
     "REGIONS",

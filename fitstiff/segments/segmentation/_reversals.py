@@ -3,28 +3,16 @@ displacement that set its default threshold (see :mod:`fitstiff.segments.segment
 
 from __future__ import annotations
 
-import math
 from typing import NamedTuple
 
 import numpy as np
 from scipy import ndimage
 
+from fitstiff.signal.noise import estimate_noise
+
 NOISE_MULTIPLE = 10.0
 RESOLUTION_MULTIPLE = 4.0
 THRESHOLD_FLOOR = 1e-6  # m
-
-
-def estimate_noise(displacement: np.ndarray) -> float:
-    """Gaussian-equivalent standard deviation of the noise on ``displacement``.
-
-    ``1.4826 * MAD(diff(x, 2)) / sqrt(6)``: robust to spikes and to the motion itself (a ramp
-    has zero second difference, a turning point affects a handful of samples).
-    """
-    x = np.asarray(displacement, dtype=np.float64)
-    if x.size < 3:
-        return 0.0
-    d2 = np.diff(x, 2)
-    return float(1.4826 * np.median(np.abs(d2 - np.median(d2))) / math.sqrt(6.0))
 
 
 def _resolution(x: np.ndarray) -> float:

@@ -12,9 +12,10 @@ from fitstiff.errors import InputError
 from fitstiff.io.log import Log
 from fitstiff.segments.segmentation._regions import _legs, _presliding_range, _regions
 from fitstiff.segments.segmentation._reversals import (_default_threshold, _hysteresis_reversals,
-                                                       _running_median, estimate_noise)
+                                                       _running_median)
 from fitstiff.segments.segmentation._time import DEFAULT_MIN_PAUSE, _pauses, _velocity
 from fitstiff.segments.segmentation.result import _BAND_STANDSTILL, _BAND_UNKNOWN, Segmentation
+from fitstiff.signal.noise import estimate_noise
 
 DEFAULT_SPEED_EDGES = (2e-3, 20e-3)  # m/s: slow < 2 mm/s <= medium < 20 mm/s <= fast
 DEFAULT_SPEED_WINDOW = 0.1  # s
