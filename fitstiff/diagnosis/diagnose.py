@@ -44,6 +44,7 @@ from fitstiff.diagnosis.structure import (STRUCTURE_ALPHA, STRUCTURE_MIN_SHRINK,
                                           describe_structure)
 from fitstiff.diagnosis.supermodel import SuperProblem, candidate_names
 from fitstiff.errors import InputError
+from fitstiff.inference.selection import Selection
 from fitstiff.io.log import Log
 from fitstiff.physics.model import DEFAULT_MODEL
 from fitstiff.signal.noise import pooled_noise_floor
@@ -59,7 +60,7 @@ MIN_SHRINK = 0.3
 def diagnose(logs: Sequence[Log], *, baseline: str = DEFAULT_MODEL,
              candidates: str | Sequence[str] = "all", alpha: float = ALPHA,
              min_shrink: float = MIN_SHRINK, structure: bool = True,
-             **problem_kw) -> Diagnosis:
+             selection: Selection | None = None, **options) -> Diagnosis:
     """Diagnose the gap between ``baseline`` and the logs.
 
     Args:
@@ -71,8 +72,9 @@ def diagnose(logs: Sequence[Log], *, baseline: str = DEFAULT_MODEL,
         min_shrink: share of the gap above the noise that an accepted effect must remove.
         structure: describe what the unexplained held-out residual follows
             (:mod:`fitstiff.diagnosis.structure`; ``Diagnosis.unexplained_structure``).
-        problem_kw: options of :class:`~fitstiff.inference.problem.Problem` (``denoise``,
-            ``sample_range``, ``weights``, ``skip``).
+        selection: the data options (:class:`~fitstiff.inference.selection.Selection`:
+            ``denoise``, ``sample_range``, ``weights``, ``skip``, ...), or its fields as
+            keywords.
 
     Returns:
         The :class:`~fitstiff.diagnosis.result.Diagnosis`.
@@ -80,8 +82,8 @@ def diagnose(logs: Sequence[Log], *, baseline: str = DEFAULT_MODEL,
     _check(logs, alpha, min_shrink)
     clock = {"start": time.perf_counter()}
     names, skipped = candidate_names(baseline, candidates, logs=logs)
-    st = _setting(SuperProblem(logs, baseline, names, **problem_kw), names, alpha=alpha,
-                  min_shrink=min_shrink)
+    sp = SuperProblem(logs, baseline, names, selection=Selection.given(selection, options))
+    st = _setting(sp, names, alpha=alpha, min_shrink=min_shrink)
     clock["setup"] = time.perf_counter()
     base = _baseline(st)
     search = base.search

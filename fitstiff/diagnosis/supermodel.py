@@ -35,6 +35,7 @@ from fitstiff.errors import InputError
 from fitstiff.inference.fitting import initial_guess
 from fitstiff.inference.lm import CONVERGED, levenberg_marquardt
 from fitstiff.inference.problem import Problem
+from fitstiff.inference.selection import Selection
 from fitstiff.io.log import Log
 from fitstiff.physics.model import parse_spec
 from fitstiff.physics.terms import EFFECTS, FRICTION_BASES, TERMS
@@ -172,16 +173,16 @@ class SuperProblem:
         logs: the logs.
         baseline: the baseline spec (``"chamber+dahl"``).
         candidates: effect names (:func:`candidate_names`).
-        problem_kw: options of :class:`~fitstiff.inference.problem.Problem` (denoise, sample_range,
-            ...).
+        selection: the data options (:class:`~fitstiff.inference.selection.Selection`), or
+            its fields as keywords.
     """
 
-    def __init__(self, logs: Sequence[Log], baseline: str, candidates: Sequence[str],
-                 **problem_kw):
+    def __init__(self, logs: Sequence[Log], baseline: str, candidates: Sequence[str], *,
+                 selection: Selection | None = None, **options):
         self.baseline_terms = tuple(name for name, _ in parse_spec(baseline))
         self.candidates = tuple(candidates)
         spec = "+".join([baseline] + [spec_token(c) for c in candidates])
-        self.problem = Problem(logs, spec, **problem_kw)
+        self.problem = Problem(logs, spec, selection=Selection.given(selection, options))
         par = self.problem.par
         model = self.problem.model
         nulls = par.nulls()
@@ -209,8 +210,8 @@ class SuperProblem:
         self._heavy_tested = np.flatnonzero(self._heavy & np.array([o.tested
                                                                       for o in self.owners]))
         self._nulls = np.array([o.null for o in self.owners])
-        light = (_Light(self, baseline, [c for c in self.candidates if c not in heavy],
-                        problem_kw) if heavy else None)
+        light = (_Light(self, baseline, [c for c in self.candidates if c not in heavy])
+                 if heavy else None)
         self._light = light if light is not None and light.maps else None
         #: the spec of the lighter problem that solves run on when no heavy candidate is live
         #: (``None``: every solve runs on the super-model)
@@ -410,11 +411,11 @@ class _Light:
     candidates add nothing, so the result is the super-model's (checked at construction: the
     layout of the residuals and the parameters' transforms must agree)."""
 
-    def __init__(self, sp: SuperProblem, baseline: str, keep: Sequence[str], problem_kw):
+    def __init__(self, sp: SuperProblem, baseline: str, keep: Sequence[str]):
         spec = "+".join([baseline] + [spec_token(c) for c in keep])
         self.spec = spec
         problem = Problem(sp.problem.logs, spec, segmentations=sp.problem.segmentations,
-                          **problem_kw)
+                          selection=sp.problem.selection)
         where = {(o.term, o.name): k for k, o in enumerate(sp.owners)}
         terms = problem.model.terms
         self.model = np.array([where[(terms[e.term_index].name, e.name)]
