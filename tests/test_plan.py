@@ -148,6 +148,24 @@ def test_confusions_name_ties_silenced_rivals_and_untestable_candidates():
     assert confusions(_diagnosis(c[3:4])) == []
 
 
+def test_significant_candidates_not_accepted_are_planned_even_with_no_gap_left():
+    """Issue 33: a leak certain in the screen (p = 1e-173) but small in force (the held-out
+    gap 1.5 % above the floor) was given no plan; candidates significant on the final model
+    and not accepted are 'undecided', two whose log p the screen cannot order as one pair."""
+    import math
+
+    c = [Candidate("leakage", 800.0, 1, 0.0, True, log_p_value=-396.28),
+         Candidate("heat_transfer", 798.0, 1, 0.0, True, log_p_value=-395.72),
+         Candidate("time_delay", 60.0, 1, 1.3e-12, True, log_p_value=math.log(1.3e-12)),
+         Candidate("viscous", 1.0, 1, 0.3, True, log_p_value=math.log(0.3))]
+    d = _diagnosis(c)
+    assert d.gap["final_heldout_rms_N"] < 1.05 * d.gap["noise_N"]
+    assert [(x.kind, x.separates) for x in confusions(d)] == [
+        ("undecided", ("leakage", "heat_transfer")), ("undecided", ("time_delay", ABSENT))]
+    # nothing significant on the final model: nothing to plan
+    assert confusions(_diagnosis(c[3:])) == []
+
+
 # -- a plan, end to end -----------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def pause_free():
