@@ -4,9 +4,12 @@ Every fitstiff module that uses JAX imports ``jax`` / ``jnp`` from here so the f
 before the first array is made.
 """
 
+import contextlib
 import gc
 import os
 
+#: whether the user chose JAX's platforms (``JAX_PLATFORMS``); else fitstiff runs on the CPU
+PLATFORMS_GIVEN = "JAX_PLATFORMS" in os.environ
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
 
 import jax  # noqa: E402
@@ -17,7 +20,23 @@ import jax.numpy as jnp  # noqa: E402
 
 from fitstiff import malloc  # noqa: E402
 
-__all__ = ["computed_apart", "jax", "jnp", "release_compiled"]
+__all__ = ["PLATFORMS_GIVEN", "computed_apart", "jax", "jnp", "on_host", "release_compiled"]
+
+
+def on_host() -> contextlib.AbstractContextManager:
+    """A context in which JAX computes on the host's CPU, where the default device is an
+    accelerator (else nothing changes).
+
+    fitstiff runs on the CPU unless ``JAX_PLATFORMS`` says otherwise (set above): one fit's
+    sequential scans are faster there (on one H100 with 16 cores, 3.8 warm fits a second on
+    the GPU against 24 on the CPU; ``benchmarks/fleet_gpu.py``). Where a process does see a
+    GPU (``JAX_PLATFORMS=cuda,cpu``), only the ``vmap``-ed batches of a fleet go to it; the
+    reading, the problems' set-up and each fit's bookkeeping stay here, where each small
+    operation does not wait for a device round trip.
+    """
+    if jax.default_backend() == "cpu":
+        return contextlib.nullcontext()
+    return jax.default_device(jax.devices("cpu")[0])
 
 
 def release_compiled() -> None:

@@ -236,8 +236,13 @@ def test_batched_solves_match_one_at_a_time(fleet):
     for a, b in zip(single, batched):
         assert b.converged
         np.testing.assert_allclose(b.values, a.values, rtol=1e-7, atol=1e-9)
+        # the covariance summary, batched too: the same standard errors and derived values
+        np.testing.assert_allclose(b.stderr, a.stderr, rtol=1e-5)
+        for name, (value, stderr) in a.derived.items():
+            np.testing.assert_allclose(b.derived[name], (value, stderr), rtol=1e-5)
     alone = fit_problems(problems[3:4], lanes=4)[0]
     assert np.array_equal(alone.values, batched[3].values)
+    assert np.array_equal(alone.stderr, batched[3].stderr)
 
 
 # -- a real Dask cluster ---------------------------------------------------------------------
@@ -367,3 +372,37 @@ def test_a_small_fleet_judges_each_cylinder_against_the_others():
     assert population(clean, q=0.05).outliers == ()
     tiny = _table(np.random.default_rng(13), cylinders=4, outliers={1}, shift=2.0)
     assert population(tiny, q=0.05).outliers == ()          # too few to say
+
+
+def test_local_workers_leave_the_platform_to_jax_only_for_batches(monkeypatch):
+    """One unit at a time keeps the workers on fitstiff's CPU default; with lanes > 1 and no
+    JAX_PLATFORMS of the user's, a worker lets JAX choose (a GPU where it sees one), and
+    never preallocates a shared device's memory."""
+    import fitstiff._jax
+    from fitstiff.fleet.engine import worker_env
+
+    monkeypatch.setattr(fitstiff._jax, "PLATFORMS_GIVEN", False)
+    assert "JAX_PLATFORMS" not in worker_env(1)
+    assert worker_env(64)["JAX_PLATFORMS"] == ""
+    assert worker_env(64)["XLA_PYTHON_CLIENT_PREALLOCATE"] == "false"
+    monkeypatch.setattr(fitstiff._jax, "PLATFORMS_GIVEN", True)      # the user's choice stands
+    assert "JAX_PLATFORMS" not in worker_env(64)
+
+
+@pytest.mark.slow
+def test_fleet_gpu_benchmark_runs_small(tmp_path):
+    """benchmarks/fleet_gpu.py on a CPU-only machine, small: one at a time and batched, and
+    the command end to end; the batched and the single fits find the same cylinders."""
+    from conftest import run_benchmark
+
+    out = tmp_path / "fg.json"
+    run_benchmark("fleet_gpu.py", "--cylinders", "3", "--samples", "1500", "--single", "2",
+                  "--cpu-lanes", "3", "--end-to-end", "--data", tmp_path / "fleet",
+                  "--json", out)
+    r = json.loads(out.read_text())
+    assert r["backends"] == ["cpu"] and r["units"] == 3
+    cpu = r["cpu"]
+    assert cpu["lanes"]["3"]["converged"] == 3 and cpu["single_warm_units_per_s"] > 0
+    assert cpu["batched_vs_cpu_single_max_rel"] < 1e-6
+    assert r["end_to_end"]["cpu"]["rc"] == 0 and r["end_to_end"]["cpu"]["units"] == 3
+    assert r["end_to_end"]["cpu"]["breakaway_max_rel_vs_cpu"] == 0.0

@@ -41,8 +41,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                        help="submit to an existing Dask scheduler, e.g. tcp://host:8786 "
                             "(its workers need fitstiff and the files)")
     where.add_argument("--lanes", type=int, default=1, metavar="N",
-                       help="cylinders per vmap-ed solve (default 1, best on CPUs; a GPU "
-                            "takes hundreds)")
+                       help="cylinders per vmap-ed solve (default 1: one at a time, on "
+                            "the CPU; N > 1 goes to a GPU where JAX sees one, e.g. with "
+                            "JAX_PLATFORMS=cuda,cpu, and takes hundreds)")
     where.add_argument("--chunk", type=int, default=8, metavar="N",
                        help="cylinders per task (default 8)")
     parser.add_argument("--diagnose", action="store_true",

@@ -37,18 +37,33 @@ from fitstiff.fleet.work import BASE_COLUMNS, Settings, fit_units
 from fitstiff.io.output import write_atomic
 from fitstiff.physics.model import DEFAULT_MODEL
 
-__all__ = ["fit_fleet", "WORKER_ENV", "CACHE_DIR", "FIT_OPTIONS", "default_workers"]
+__all__ = ["fit_fleet", "WORKER_ENV", "CACHE_DIR", "FIT_OPTIONS", "default_workers", "worker_env"]
 
 #: the per-chunk rows of finished units, inside the output directory (kept between runs)
 CACHE_DIR = ".fleet-cache"
-#: the environment of a local worker process: one thread for XLA and the BLAS libraries
+#: the environment of a local worker process: one thread for XLA and the BLAS libraries; on
+#: a GPU, memory taken as needed (workers share the one device: none may take most of it)
 WORKER_ENV = {"XLA_FLAGS": "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1",
-              "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+              "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
+              "XLA_PYTHON_CLIENT_PREALLOCATE": "false"}
 #: the options of :func:`fitstiff.fit` a fleet passes on to each unit's fit
 FIT_OPTIONS = ("solver", "max_steps", "starts", "seed", "denoise", "sample_range", "weights",
                "skip", "free")
 #: units per task: enough to amortise a task's overhead, few enough to spread the work
 _CHUNK = 8
+
+
+def worker_env(lanes: int) -> dict[str, str]:
+    """The environment of a local worker process (:data:`WORKER_ENV`). With batches
+    (``lanes > 1``) and no ``JAX_PLATFORMS`` of the user's, JAX chooses the platform: a worker
+    that sees a GPU sends its batches there (:func:`fitstiff._jax.on_host`); one unit at a
+    time runs on the CPU."""
+    from fitstiff._jax import PLATFORMS_GIVEN
+
+    env = dict(WORKER_ENV)
+    if lanes > 1 and not PLATFORMS_GIVEN:
+        env["JAX_PLATFORMS"] = ""
+    return env
 
 
 def default_workers() -> int:
@@ -115,7 +130,7 @@ def _run_dask(chunks, settings, done, *, keys: list[str], workers: int | None,
     else:
         cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
                                dashboard_address=None, silence_logs=logging.ERROR,
-                               env=dict(WORKER_ENV))
+                               env=worker_env(settings.lanes))
         client = Client(cluster)
     try:
         futures = client.map(fit_units, chunks, settings=settings, key=keys, pure=False)

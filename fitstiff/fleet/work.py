@@ -118,6 +118,7 @@ def _failure(exc: BaseException) -> str:
 def fit_units(units: Sequence[Unit], settings: Settings) -> list[dict[str, object]]:
     """One row per unit of ``units`` (in their order): loaded, fitted, summarised. A unit
     that fails has its one-line message in ``error`` (and ``converged`` False)."""
+    from fitstiff._jax import on_host
     from fitstiff.inference.fitting import fit_problem, fit_problems
     from fitstiff.inference.problem import Problem
     from fitstiff.inference.selection import Selection
@@ -141,8 +142,9 @@ def fit_units(units: Sequence[Unit], settings: Settings) -> list[dict[str, objec
                 where = unit.cylinder + (f"/{unit.run}" if unit.run else "")
                 raise InputError(where, "cylinder", "has no logs", "put its CSV logs in its "
                                  "folder, or list them in the manifest")
-            logs = load_logs(unit.files, **settings.reading)
-            problem = Problem(logs, settings.model, fix=settings.fix, selection=selection)
+            with on_host():
+                logs = load_logs(unit.files, **settings.reading)
+                problem = Problem(logs, settings.model, fix=settings.fix, selection=selection)
             ready.append((row, logs, problem))
         except Exception as exc:      # one bad cylinder never stops the fleet
             row["error"] = _failure(exc)
@@ -156,7 +158,10 @@ def fit_units(units: Sequence[Unit], settings: Settings) -> list[dict[str, objec
             results = [None] * len(ready)
     for k, (row, logs, problem) in enumerate(ready):
         try:
-            result = results[k] or fit_problem(problem, **single)
+            if results[k] is None:
+                with on_host():     # one unit at a time: faster on the CPU than on a GPU
+                    results[k] = fit_problem(problem, **single)
+            result = results[k]
             row.update(_row(result))
             if settings.diagnose:
                 row.update(_diagnosis_row(logs, settings))

@@ -11,12 +11,13 @@ from typing import NamedTuple
 import numpy as np
 import optimistix as optx
 
-from fitstiff._jax import jax, jnp
+from fitstiff._jax import jax, jnp, on_host
 from fitstiff.errors import InputError
 from fitstiff.inference import lm
 from fitstiff.inference.fitting.result import FitResult
 from fitstiff.inference.fitting.start import initial_guess
-from fitstiff.inference.fitting.summary import _is_lean, _lag1, _summarise
+from fitstiff.inference.fitting.summary import (_is_lean, _lag1, _summarise, summary_evaluate,
+                                                summary_spans)
 from fitstiff.inference.problem import Problem, compiled_batch
 from fitstiff.inference.selection import Selection
 from fitstiff.io.log import Log
@@ -196,8 +197,9 @@ def fit_problems(problems: Sequence[Problem], *, solver: str = "lm", max_steps: 
     solves of problems of one structure (:meth:`~fitstiff.inference.problem.Problem.structure_key`)
     run ``lanes`` at a time as one ``vmap``-ed call
     (:func:`~fitstiff.inference.problem.compiled_batch`: one compilation per structure, and a lane's
-    result does not depend on its neighbours). What follows a solve (the flat-cost check, the
-    covariance summary) is each problem's own. A fleet's cylinders go through here
+    result does not depend on its neighbours). The flat-cost check after a solve is each
+    problem's own; the covariance summary's compiled part runs batched the same way (each
+    problem's own where it takes the memory-lean path). A fleet's cylinders go through here
     (:mod:`fitstiff.fleet`)."""
     if solver not in SOLVERS:
         raise InputError(None, f"--solver {solver}", "unknown solver",
@@ -214,16 +216,38 @@ def fit_problems(problems: Sequence[Problem], *, solver: str = "lm", max_steps: 
         own = SOLVERS[chosen] is _NormalEquationsLM
         for at in range(0, len(index), lanes):
             chunk = [problems[i] for i in index[at:at + lanes]]
-            theta0 = jnp.stack([p.pack(*initial_guess(p)) for p in chunk])
+            with on_host():
+                theta0 = np.stack([np.asarray(p.pack(*initial_guess(p))) for p in chunk])
             solve = compiled_batch(chunk, _solve, lanes=lanes, solver=chosen, rtol=rtol,
                                    atol=atol, max_steps=max_steps)
             outs = jax.tree.map(np.asarray, solve(theta0))    # the status: a pytree
-            for k, (i, problem) in enumerate(zip(index[at:at + lanes], chunk)):
-                lane = jax.tree.map(lambda x: x[k], outs)
-                out = _as_run(own, jnp.asarray(lane[0]), *lane[1:])
-                judged = _judged(problem, out, solver=chosen, rtol=rtol, atol=atol)
-                results[i] = _best_of(problem, [judged], solver=chosen, starts=1)
+            judged = []
+            with on_host():         # each lane's own steps: on the host, where a GPU batched
+                for k, problem in enumerate(chunk):
+                    lane = jax.tree.map(lambda x: x[k], outs)
+                    out = _as_run(own, jnp.asarray(lane[0]), *lane[1:])
+                    judged.append(_judged(problem, out, solver=chosen, rtol=rtol, atol=atol))
+            evaluated = _batched_summaries(chunk, [j[2] for j in judged], lanes=lanes,
+                                           solver=chosen)
+            with on_host():
+                for k, i in enumerate(index[at:at + lanes]):
+                    results[i] = _best_of(problems[i], [judged[k]], solver=chosen, starts=1,
+                                          evaluated=evaluated[k])
     return results
+
+
+def _batched_summaries(chunk: Sequence[Problem], thetas, *, lanes: int, solver: str) -> list:
+    """:func:`~fitstiff.inference.fitting.summary.summary_evaluate` of each problem of
+    ``chunk`` at its ``theta``, as one ``vmap``-ed call (on a GPU, one call instead of one
+    per problem); ``None`` for each where the summary takes the memory-lean path or the
+    problems' residual layouts differ (then each is summarised on its own)."""
+    spans = summary_spans(chunk[0])
+    if (solver == "lm-normal" or any(_is_lean(p) for p in chunk)
+            or any(summary_spans(p) != spans for p in chunk[1:])):
+        return [None] * len(chunk)
+    ev = compiled_batch(chunk, summary_evaluate, lanes=lanes, spans=spans, sequential=False)
+    out = jax.tree.map(np.asarray, ev(np.stack([np.asarray(t) for t in thetas])))
+    return [jax.tree.map(lambda x: x[k], out) for k in range(len(chunk))]
 
 
 def _judged(problem: Problem, out: _Run, *, solver: str, rtol: float, atol: float):
@@ -240,8 +264,10 @@ def _judged(problem: Problem, out: _Run, *, solver: str, rtol: float, atol: floa
     return ok, float(cost), np.asarray(theta), out, walk
 
 
-def _best_of(problem: Problem, runs, *, solver: str, starts: int) -> FitResult:
-    """The :class:`FitResult` of the best converged start (else the best start)."""
+def _best_of(problem: Problem, runs, *, solver: str, starts: int,
+             evaluated=None) -> FitResult:
+    """The :class:`FitResult` of the best converged start (else the best start);
+    ``evaluated``: the summary at that start's end, already computed (one start only)."""
     converged_runs = [r for r in runs if r[0]]
     best = min(converged_runs or runs, key=lambda r: r[1] if np.isfinite(r[1]) else np.inf)
     agreed = sum(1 for r in converged_runs
@@ -263,7 +289,7 @@ def _best_of(problem: Problem, runs, *, solver: str, starts: int) -> FitResult:
     return _summarise(problem, jnp.asarray(theta), converged=ok, message=str(message),
                       steps=out.steps, solver=solver,
                       starts={"requested": starts, "converged": len(converged_runs),
-                              "agreed": agreed}, notes=notes)
+                              "agreed": agreed}, notes=notes, evaluated=evaluated)
 
 
 def _out_of_steps(result) -> bool:

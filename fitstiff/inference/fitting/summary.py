@@ -25,7 +25,7 @@ from fitstiff.physics.terms.base import FrictionBase, Modifier
 from fitstiff.signal.noise import marginal_scale
 from fitstiff.signal.spikes import UNTRUSTED as _UNTRUSTED
 
-__all__ = ["LEAN_JACOBIAN_MB", "summary_evaluate", "errors_in_variables_gram",
+__all__ = ["LEAN_JACOBIAN_MB", "summary_evaluate", "summary_spans", "errors_in_variables_gram",
            "implausible"]
 
 #: ``"lm"`` switches to ``"lm-normal"`` when the Jacobian (residuals x entries, float64)
@@ -56,14 +56,26 @@ def _is_lean(problem: Problem) -> bool:
     return rows * problem.size * 8 > LEAN_JACOBIAN_MB * 2**20
 
 
+def summary_spans(problem: Problem) -> tuple[tuple[tuple[int, int], ...], ...]:
+    """Per log, the ``(start, stop)`` entries of its residual series (:func:`summary_evaluate`'s
+    ``spans``)."""
+    return tuple(tuple((s.span.start, s.span.stop) for s in problem.residual_series()
+                       if s.log == i) for i in range(problem.n_logs))
+
+
 def _summarise(problem: Problem, theta, *, converged: bool, message: str, steps: int,
-               solver: str, starts: Mapping[str, int], notes: Sequence[str] = ()) -> FitResult:
+               solver: str, starts: Mapping[str, int], notes: Sequence[str] = (),
+               evaluated: _Summary | None = None) -> FitResult:
+    """The fit's record at ``theta``; ``evaluated``: :func:`summary_evaluate` at ``theta``
+    already computed (the batched fits of a fleet compute it for many problems in one call;
+    never on the lean path)."""
     # the memory-lean summary where the solve was lean: for a long log, or when asked for
     lean = solver == "lm-normal" or _is_lean(problem)
-    spans = tuple(tuple((s.span.start, s.span.stop) for s in problem.residual_series()
-                        if s.log == i) for i in range(problem.n_logs))
-    ev = problem.compiled(summary_evaluate, spans=spans, sequential=lean)
-    summary = jax.tree.map(np.asarray, ev(theta))
+    if evaluated is not None and not lean:
+        summary = jax.tree.map(np.asarray, evaluated)
+    else:
+        ev = problem.compiled(summary_evaluate, spans=summary_spans(problem), sequential=lean)
+        summary = jax.tree.map(np.asarray, ev(theta))
     if lean:    # apart: the two working sets of a long log do not add up
         summary = summary._replace(eiv_gram=np.asarray(
             problem.compiled(errors_in_variables_gram)(theta)))
