@@ -9,6 +9,13 @@ peak counter is reset between stages through ``/proc/self/clear_refs``).
 
     python benchmarks/fit_memory.py --json benchmarks/results/fit_memory.json
     python benchmarks/fit_memory.py --seconds 10          # a 100 000-sample rehearsal
+
+Issue 36 (logs of any length in bounded memory): ``--samples N`` writes an ``N``-sample log
+instead (10 kHz), also measures ``fitstiff inspect`` on it, and fits a ``--reference``-sample
+log (1 M) in the same run for the wall-time ratio. A child past ``--timeout`` seconds is
+stopped; its peak resident set is polled every 0.2 s, so a stopped run still reports it.
+
+    python benchmarks/fit_memory.py --samples 10000000 --json benchmarks/results/fit_memory_10m.json
 """
 
 from __future__ import annotations
@@ -92,11 +99,85 @@ def measure(csv: Path) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
+def watched(command: list[str], *, timeout: float) -> dict:
+    """Run ``command``; its wall time, exit status, last output line and peak resident set
+    (polled every 0.2 s with psutil: a run stopped at ``timeout`` still has one)."""
+    import psutil
+
+    t0 = time.perf_counter()
+    proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            text=True)
+    watch = psutil.Process(proc.pid)
+    peak, stopped = 0.0, False
+    while proc.poll() is None:
+        try:
+            peak = max(peak, watch.memory_info().rss / 2**20)
+        except psutil.Error:
+            break
+        if time.perf_counter() - t0 > timeout:
+            proc.kill()
+            stopped = True
+            break
+        time.sleep(0.2)
+    output = proc.communicate()[0]
+    lines = output.strip().splitlines()
+    return {"wall_s": time.perf_counter() - t0, "returncode": proc.returncode,
+            "stopped_at_timeout": stopped, "peak_rss_mb": peak,
+            "last_line": lines[-1] if lines else ""}
+
+
+def _fit_run(csv: Path, timeout: float) -> dict:
+    run = watched([sys.executable, "-c", _CHILD, str(csv)], timeout=timeout)
+    if run["returncode"] == 0:
+        run.update(json.loads(run.pop("last_line")))
+    return run
+
+
+def long_log(args) -> dict:
+    """``inspect`` and ``fit`` of an ``--samples`` log, and the fit of a ``--reference`` one."""
+    result: dict = {"samples_requested": args.samples, "reference_samples": args.reference}
+    with tempfile.TemporaryDirectory() as tmp:
+        for key, samples in (("reference", args.reference), ("long", args.samples)):
+            folder = Path(tmp) / key
+            folder.mkdir()
+            start = time.perf_counter()
+            csv = write_log(folder, samples / RATE_HZ)
+            result[f"{key}_csv_mb"] = csv.stat().st_size / 1e6
+            print(f"wrote {csv.stat().st_size / 1e6:.0f} MB CSV in "
+                  f"{time.perf_counter() - start:.0f} s", flush=True)
+            if key == "long":
+                result["inspect"] = watched([sys.executable, "-m", "fitstiff", "inspect",
+                                             str(csv), "--json"], timeout=args.timeout)
+                print(json.dumps(result["inspect"])[:300], flush=True)
+            result[f"{key}_fit"] = _fit_run(csv, args.timeout)
+            print(json.dumps(result[f"{key}_fit"])[:300], flush=True)
+    ref, long = result["reference_fit"], result["long_fit"]
+    if ref.get("returncode") == 0 and long.get("returncode") == 0:
+        result["fit_wall_ratio"] = long["wall_s"] / ref["wall_s"]
+    result["targets"] = {"inspect_peak_mb_at_most": 1024, "fit_peak_mb_at_most": 2048,
+                         "fit_wall_ratio_at_most": 12.0, "reference_fit_peak_mb_at_most": 1024}
+    return result
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--seconds", type=float, default=100.0)
+    parser.add_argument("--samples", type=int,
+                        help="a long log of this many samples: inspect and fit it, and fit a "
+                             "--reference one for the wall-time ratio")
+    parser.add_argument("--reference", type=int, default=1_000_000)
+    parser.add_argument("--timeout", type=float, default=1800.0,
+                        help="seconds a child may run (--samples)")
     parser.add_argument("--json", type=Path)
     args = parser.parse_args(argv)
+    if args.samples:
+        result = long_log(args)
+        result["command"] = "python benchmarks/fit_memory.py " + " ".join(argv or sys.argv[1:])
+        print(json.dumps(result, indent=1))
+        if args.json:
+            args.json.parent.mkdir(parents=True, exist_ok=True)
+            args.json.write_text(json.dumps(result, indent=1) + "\n")
+        return 0
     with tempfile.TemporaryDirectory() as tmp:
         start = time.perf_counter()
         csv = write_log(Path(tmp), args.seconds)

@@ -513,3 +513,97 @@ def test_the_bundled_and_real_logs_have_no_spike_or_scale_note():
     real = sorted(REALDATA.glob("O-ring_*bar.csv"))
     for log in (load_logs(real, fmt="zillen_oring") if real else []):
         assert not [n for n in log.notes if "spike" in n or "reaches" in n], log.name
+
+
+# ------------------------------------------------------- clean files, read without their lines
+def _channels(log):
+    return [None if a is None else np.asarray(a) for a in
+            (log.time, log.displacement, log.force, log.pressure_a, log.pressure_b)]
+
+
+@pytest.mark.parametrize("variant", ["plain", "crlf", "bom", "tab", "semicolon", "blanks",
+                                     "trailing blank lines", "text column", "no header"])
+def test_a_clean_file_reads_as_the_same_file_read_line_by_line(tmp_path, variant):
+    """A clean file (one delimiter, plain ASCII, no quotes) is parsed straight from its bytes;
+    the same rows with a quoted cell in an unused column go through csv line by line. Both
+    give the same numbers to the bit (those of float() on each cell), rows and notes."""
+    rng = np.random.default_rng(3)
+    values = rng.normal(size=(400, 3)) * [0.3, 20.0, 0.4] + [0.0, 0.0, 6.0]
+    cells = [[f"{0.001 * i:.3f}", repr(float(d)), f"{f:.9e}", f"{p:.17g}"]
+             for i, (d, f, p) in enumerate(values)]
+    header = ["time_s", "displacement_mm", "force_N", "p_a_bar"]
+    delimiter, eol, options = ",", "\n", {}
+    if variant == "tab":
+        delimiter = "\t"
+    if variant == "semicolon":
+        delimiter = ";"
+    if variant == "crlf":
+        eol = "\r\n"
+    if variant == "blanks":
+        cells = [[f" {c}  " if k % 2 else f"+{c}" if c[0] != "-" else c for k, c in
+                  enumerate(row)] for row in cells]
+    if variant == "text column":
+        header.append("comment")
+        cells = [row + [f"step {i}"] for i, row in enumerate(cells)]
+    if variant == "no header":
+        options = {"columns": ["time=1:s", "displacement=2:mm", "force=3:N", "p_a=4:bar"],
+                   "no_header": True}
+
+    def text(rows):
+        lines = ([] if variant == "no header" else [delimiter.join(header)])
+        lines += [delimiter.join(row) for row in rows]
+        return eol.join(lines) + eol + ("\n \n\n" if variant == "trailing blank lines" else "")
+
+    clean = write(tmp_path, text(cells), name="clean.csv", bom=variant == "bom")
+    quoted_rows = [row + ['"q"'] for row in cells] if variant != "text column" else [
+        row[:-1] + ['"q"'] for row in cells]
+    if variant != "text column" and variant != "no header":
+        header.append("comment")
+    quoted = write(tmp_path, text(quoted_rows), name="quoted.csv", bom=variant == "bom")
+    a, b = load_log(clean, **options), load_log(quoted, **options)
+    for x, y in zip(_channels(a), _channels(b)):
+        assert (x is None and y is None) or np.array_equal(x, y)
+    assert a.source["rows"] == b.source["rows"] == 400
+    assert a.notes == b.notes
+    expected = np.array([float(row[2]) for row in cells])
+    assert np.array_equal(np.asarray(a.force), expected)
+
+
+@pytest.mark.parametrize("cell, found", [
+    ("nan", "found 'nan', not a finite number"),
+    ("1e999", "found '1e999', not a finite number"),
+    ("1_000", "found '1_000', not a plain decimal number"),
+    ("", "the cell is empty"),
+    ("12,5", None),
+])
+def test_a_bad_cell_deep_in_a_clean_file_is_named_by_its_line(tmp_path, cell, found):
+    """A file clean but for one cell of a used column deep down: the line-by-line reader
+    names that cell (line and column), as for any file."""
+    lines = good_lines(3000)
+    row = lines[2500].split(",")
+    row[2] = cell
+    lines[2500] = ",".join(row)
+    message = error_message(write(tmp_path, lines))
+    if found is None:       # a decimal comma splits the row: one cell too many
+        assert "line 2501: has 5 fields, expected 4" in message
+    else:
+        assert "line 2501, column 3 'force_N'" in message and found in message
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("eol", ["\n", "\r\n"])
+def test_a_clean_file_larger_than_a_block_reads_whole(tmp_path, eol):
+    """A clean file longer than the reader's 16 MB block (a row end falls anywhere in
+    it): every row once, the numbers of float() on each cell, the file's digest."""
+    rng = np.random.default_rng(5)
+    n = 420_000
+    force = rng.normal(size=n) * 30
+    lines = ["time_s,displacement_mm,force_N,p_a_bar,p_b_bar"] + [
+        f"{0.0001 * i:.4f},{0.001 * np.sin(i / 5000):.12f},{float(f)!r},6.{i % 10},5.5"
+        for i, f in enumerate(force)]
+    path = write(tmp_path, lines, eol=eol)
+    assert path.stat().st_size > 16 * 2**20
+    log = load_log(path)
+    assert log.source["rows"] == n and log.source["sha256"] == sha256(path)
+    assert np.array_equal(np.asarray(log.force), force)
+    assert np.array_equal(np.asarray(log.time), [float(f"{0.0001 * i:.4f}") for i in range(n)])

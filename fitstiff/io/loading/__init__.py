@@ -25,6 +25,11 @@ chamber is taken as vented and ``Log.notes`` says so.
 Every problem is one :class:`~fitstiff.errors.InputError` naming the file, the line (1-based,
 as in the file, header included), column or key, what was found and how to fix it. The loader
 never modifies the file and never drops, clips or reorders rows.
+
+A clean file (plain ASCII rows of one width, a single-character delimiter, no quotes) is
+checked and parsed a block of rows at a time, without holding its text: a long log costs its
+arrays, not its lines. Any other file is read whole and line by line, which is also how a bad
+cell anywhere is found and named; both give the numbers of ``float`` on each cell.
 """
 
 from __future__ import annotations

@@ -18,7 +18,7 @@ from fitstiff.io.columns import (CHAMBERS, Format, load_format, parse_columns, p
                                  parse_vented, read_json_object)
 from fitstiff.io.loading._cells import (_SHOWN, _check_magnitude, _check_pressure, _check_stroke,
                                         _check_time, _check_time_step, _columns, _values)
-from fitstiff.io.loading._text import MIN_SAMPLES, _read, _show, _table
+from fitstiff.io.loading._text import MIN_SAMPLES, _open_table, _show
 from fitstiff.io.log import Log, Rig
 from fitstiff.io.validation import exists
 from fitstiff.signal.spikes import find_spikes, force_scale_note, spike_note
@@ -146,9 +146,8 @@ def _rig(path: Path, layout: Format, overrides: Mapping[str, object]
 
 def _load(path: Path, layout: Format, overrides: dict[str, object]) -> Log:
     where = str(path)
-    raw = _read(path)
     no_header = bool(layout.no_header)
-    table = _table(raw, where=where, delimiter=layout.delimiter, header=not no_header)
+    table = _open_table(path, where=where, delimiter=layout.delimiter, header=not no_header)
     if table.n_rows < MIN_SAMPLES:
         raise InputError(where, "file", f"has {table.n_rows} data rows",
                          f"give at least {MIN_SAMPLES} samples")
@@ -156,11 +155,15 @@ def _load(path: Path, layout: Format, overrides: dict[str, object]) -> Log:
     rig, vented, sidecar = _rig(path, layout, overrides)
 
     si = {}
+    numbers = table.numbers([c.index for c in found.values()])
     for quantity, column in found.items():
+        values = (numbers.pop(column.index) if numbers is not None
+                  else _values(table, column, no_header=no_header))     # a fresh array
         with np.errstate(over="ignore"):
-            si[quantity] = _values(table, column, no_header=no_header) * column.spec.factor
+            values *= column.spec.factor            # in place: a long log's column is large
             if quantity.startswith("p_") and not column.spec.unit.absolute:
-                si[quantity] = si[quantity] + rig.ambient_pressure      # stored absolute
+                values += rig.ambient_pressure      # stored absolute
+        si[quantity] = values
         _check_magnitude(table, column, si[quantity])
     if "time" in si:
         _check_time(table, found["time"], si["time"])
@@ -197,7 +200,7 @@ def _load(path: Path, layout: Format, overrides: dict[str, object]) -> Log:
     used = {c.index for c in found.values()}
     source = {
         "path": where,
-        "sha256": hashlib.sha256(raw).hexdigest(),
+        "sha256": table.sha256,
         "delimiter": _show(table.delimiter),
         "header": table.header is not None,
         "rows": table.n_rows,
