@@ -18,7 +18,7 @@ from fitstiff.physics.simulate import Noise as SimNoise
 from fitstiff.physics.simulate import simulate
 from fitstiff.planning import Limits, Plan, plan
 from fitstiff.planning.families import FAMILIES, Choice, choices, naive_choice
-from fitstiff.planning.rivals import ABSENT, confusions
+from fitstiff.planning.rivals import ABSENT, confusions, deferred
 from fitstiff.planning.separation import detectable_size, noncentrality
 from fitstiff.units import MM
 
@@ -164,6 +164,26 @@ def test_significant_candidates_not_accepted_are_planned_even_with_no_gap_left()
         ("undecided", ("leakage", "heat_transfer")), ("undecided", ("time_delay", ABSENT))]
     # nothing significant on the final model: nothing to plan
     assert confusions(_diagnosis(c[3:])) == []
+
+
+def test_undecided_candidates_wait_while_a_root_question_is_planned():
+    """Issue 33: with one logged pressure, pressure-dependent friction is untestable and
+    Maxwell-slip significant in its place; planning both fed a look-alike (a time delay)
+    into the next diagnosis. The undecided one waits for the runs of the untestable one;
+    with nothing else to plan, undecided candidates are planned."""
+    import math
+
+    c = [Candidate("pressure_friction", 0.0, 1, 1.0, False),
+         Candidate("maxwell_slip", 90.0, 2, 1e-9, True, log_p_value=math.log(1e-9)),
+         Candidate("viscous", 1.0, 1, 0.3, True, log_p_value=math.log(0.3))]
+    d = _diagnosis(c, detectability={"pressure_friction": {"testable": False,
+                                                           "reason": "one pressure"}})
+    now, later = deferred(confusions(d))
+    assert [(x.kind, x.separates) for x in now] == [
+        ("untestable", ("pressure_friction", ABSENT))]
+    assert [(x.kind, x.separates) for x in later] == [("undecided", ("maxwell_slip", ABSENT))]
+    alone = confusions(_diagnosis(c[1:]))
+    assert deferred(alone) == (alone, []) and alone[0].kind == "undecided"
 
 
 # -- a plan, end to end -----------------------------------------------------------------------

@@ -26,7 +26,7 @@ from fitstiff.io.log import Log
 from fitstiff.physics.drive import make_drive
 from fitstiff.physics.simulate import CSV_DIGITS
 from fitstiff.planning.families import Choice, Limits, choices, naive_choice
-from fitstiff.planning.rivals import ABSENT, Confusion, Rivals, confusions
+from fitstiff.planning.rivals import ABSENT, Confusion, Rivals, confusions, deferred
 from fitstiff.planning.separation import (LEVEL, POWER, Noise, detectable_size,
                                           noncentrality, outputs, sizes)
 from fitstiff.segments.segmentation import standstill
@@ -271,11 +271,17 @@ def plan(diagnosis: Diagnosis, logs: Sequence[Log], *, limits: Limits | None = N
     start = time.perf_counter()
     limits = limits or Limits.from_logs(logs)
     noise = noise_of(diagnosis, logs)
-    found = confusions(diagnosis, separate=separate)[:max(1, max_programs // RUNS)]
+    found, later = deferred(confusions(diagnosis, separate=separate))
+    found = found[:max(1, max_programs // RUNS)]
     rivals = Rivals(logs, diagnosis.final_model, seed=seed,
                     selection=Selection.given(selection, options))
     spent = {"rivals": 0.0, "search": 0.0}
-    programs, unplanned = [], []
+    programs = []
+    unplanned = [{"separates": list(c.separates), "kind": c.kind,
+                  "why": "deferred: the runs planned for "
+                         + "; ".join(" vs ".join(f.separates) for f in found)
+                         + " come first (it may be their shadow); diagnose them, then plan "
+                           "again"} for c in later]
     naive_log = max(logs, key=len)
     for confusion in found:
         t0 = time.perf_counter()
