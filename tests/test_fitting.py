@@ -474,3 +474,24 @@ def test_the_table_states_the_reference_pressure_of_pressure_friction():
     result = fit(logs, "dahl+pressure_friction")
     assert "p_ref = 4 bar gauge" in result.table()
     assert result.to_dict()["settings"]["pressure_friction"]["p_ref"] == pytest.approx(4e5)
+
+
+@pytest.mark.slow
+def test_fit_memory_benchmark_runs_small(tmp_path):
+    """benchmarks/fit_memory.py --samples (issue 36's long-log run), small: inspect and both
+    fits finish, their peaks are measured, the wall ratio is the long fit's over the
+    reference's, and both fits find the simulated seal."""
+    out = tmp_path / "fm.json"
+    run_benchmark("fit_memory.py", "--samples", "150000", "--reference", "74000",
+                  "--timeout", "600", "--json", out)
+    r = json.loads(out.read_text())
+    assert r["inspect"]["returncode"] == 0 and r["inspect"]["peak_rss_mb"] > 0
+    for key in ("reference_fit", "long_fit"):
+        fit = r[key]
+        assert fit["returncode"] == 0 and fit["converged"], key
+        assert fit["peak_rss_mb"] >= fit["stage_peaks_mb"]["import"] > 0
+        assert fit["sigma0_N_per_mm"]["value"] == pytest.approx(40, rel=0.01)
+        assert fit["Fc_N"]["value"] == pytest.approx(18, rel=0.01)
+    assert r["long_fit"]["samples"] == 2 * r["reference_fit"]["samples"] - 1   # 2 cycles, 1
+    assert r["fit_wall_ratio"] == pytest.approx(r["long_fit"]["wall_s"]
+                                                / r["reference_fit"]["wall_s"])
