@@ -228,6 +228,27 @@ def test_a_plan_for_an_untestable_effect_adds_the_standstills_it_needs(pause_fre
     assert set(first.predicted_N) == {"dwell_stiction", ABSENT}
 
 
+def test_an_undecided_candidate_waits_for_the_runs_of_an_untestable_one(pause_free):
+    """Dwell stiction untestable (no pauses) and viscous friction undecided: the runs go to
+    dwell stiction, and viscous friction is listed as deferred until they are diagnosed."""
+    import math
+
+    d = _diagnosis([Candidate("dwell_stiction", 0.0, 3, 1.0, False),
+                    Candidate("viscous", 30.0, 1, 1e-8, True, log_p_value=math.log(1e-8))],
+                   detectability={"dwell_stiction": {"testable": False,
+                                                     "reason": "no pauses"}})
+    d = Diagnosis.from_dict(d.to_dict() | {
+        "noise_N": {log.name: {"sigma_N": 0.1, "rho": 0.0} for log in pause_free},
+        "gap": {"heldout_rms_N": 0.1, "noise_N": 0.1, "final_heldout_rms_N": 0.1}})
+    limits = Limits.from_logs(pause_free, max_duration_s=10.0, pressures_bar=(4.0, 6.0))
+    result = plan(d, pause_free, limits=limits)
+    assert {p.separates for p in result.programs} == {("dwell_stiction", ABSENT)}
+    assert [(u["kind"], u["separates"]) for u in result.unplanned] == [
+        ("undecided", ["viscous", ABSENT])]
+    assert result.unplanned[0]["why"].startswith("deferred: the runs planned for "
+                                                 "dwell_stiction vs absent")
+
+
 def test_a_pair_both_fitted_is_separated_by_its_z(pause_free):
     d = _diagnosis([Candidate("viscous", 9.0, 1, 1e-5, True, accepted=True,
                               first_p_value=1e-5),

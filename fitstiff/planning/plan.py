@@ -272,59 +272,75 @@ def plan(diagnosis: Diagnosis, logs: Sequence[Log], *, limits: Limits | None = N
     limits = limits or Limits.from_logs(logs)
     noise = noise_of(diagnosis, logs)
     found, later = deferred(confusions(diagnosis, separate=separate))
-    found = found[:max(1, max_programs // RUNS)]
+    most = max(1, max_programs // RUNS)
     rivals = Rivals(logs, diagnosis.final_model, seed=seed,
                     selection=Selection.given(selection, options))
     spent = {"rivals": 0.0, "search": 0.0}
-    programs = []
-    unplanned = [{"separates": list(c.separates), "kind": c.kind,
-                  "why": "deferred: the runs planned for "
-                         + "; ".join(" vs ".join(f.separates) for f in found)
-                         + " come first (it may be their shadow); diagnose them, then plan "
-                           "again"} for c in later]
+    programs: list[PlannedProgram] = []
+    unplanned: list[dict] = []
     naive_log = max(logs, key=len)
-    for confusion in found:
-        t0 = time.perf_counter()
-        try:
-            scorer = _Scorer(confusion, rivals, logs, limits, noise)
-        except InputError as exc:
-            unplanned.append({"separates": list(confusion.separates), "kind": confusion.kind,
-                              "why": f"its rivals could not be fitted: {exc}"})
-            continue
-        settled = _settled_by_logs(confusion, scorer, noise)
-        if settled:
-            spent["rivals"] += time.perf_counter() - t0
-            unplanned.append({"separates": list(confusion.separates), "kind": confusion.kind,
-                              "why": settled})
-            continue
-        t1 = time.perf_counter()
-        runs = _search(scorer, limits, logs)
-        naive = scorer.score(naive_choice(naive_log))
-        spent["rivals"] += t1 - t0
-        spent["search"] += time.perf_counter() - t1
-        if not runs:
-            unplanned.append({"separates": list(confusion.separates), "kind": confusion.kind,
-                              "why": "no program within the limits separates them (widen "
-                                     "--pressures, --stroke-range, --max-speed or "
-                                     "--max-duration)"})
-            continue
-        for run, (best, expected) in enumerate(runs):
-            t, x = best.sample(limits)
-            k = len(programs) + 1
-            programs.append(PlannedProgram(
-                file=f"program_{k}.csv", supply_bar=best.supply_bar,
-                start_position_mm=best.start_position_mm, duration_s=float(t[-1]),
-                rate_hz=limits.rate_hz, program=best.describe(), kind=confusion.kind,
-                separates=confusion.separates, expected=_public(expected),
-                naive={"program": f"the log {naive_log.name} replayed",
-                       **_public(naive)},
-                why=_why(confusion, best, expected, naive, run=run),
-                time_s=t, displacement_mm=x / MM,
-                predicted_N=scorer.predicted(best, expected)))
+    for confusion in found[:most]:
+        _plan_one(confusion, rivals, logs, limits, noise, naive_log, programs, unplanned, spent)
+    waiting = [c for c in found if any(p.separates == c.separates for p in programs)]
+    if waiting:
+        unplanned += [{"separates": list(c.separates), "kind": c.kind,
+                       "why": "deferred: the runs planned for "
+                              + "; ".join(" vs ".join(f.separates) for f in waiting)
+                              + " come first (it may be their shadow); diagnose them, then "
+                                "plan again"} for c in later]
+    else:       # the logs settle every root question, or no program can: nothing to wait for
+        for confusion in later[:most]:
+            _plan_one(confusion, rivals, logs, limits, noise, naive_log, programs, unplanned,
+                      spent)
     return Plan(programs=tuple(programs), unplanned=tuple(unplanned), limits=limits,
                 noise=noise, diagnosis={"final_model": diagnosis.final_model,
                                         "files": list(diagnosis.files)},
                 seed=seed, timing_s={**spent, "total": time.perf_counter() - start})
+
+
+def _plan_one(confusion: Confusion, rivals: Rivals, logs: Sequence[Log], limits: Limits,
+              noise: Noise, naive_log: Log, programs: list, unplanned: list,
+              spent: dict) -> None:
+    """The runs that separate ``confusion`` best, appended to ``programs`` (or why none is,
+    to ``unplanned``); the time spent, to ``spent``."""
+    t0 = time.perf_counter()
+    try:
+        scorer = _Scorer(confusion, rivals, logs, limits, noise)
+    except InputError as exc:
+        unplanned.append({"separates": list(confusion.separates), "kind": confusion.kind,
+                          "why": f"its rivals could not be fitted: {exc}"})
+        return
+    settled = _settled_by_logs(confusion, scorer, noise)
+    if settled:
+        spent["rivals"] += time.perf_counter() - t0
+        unplanned.append({"separates": list(confusion.separates), "kind": confusion.kind,
+                          "why": settled})
+        return
+    t1 = time.perf_counter()
+    runs = _search(scorer, limits, logs)
+    naive = scorer.score(naive_choice(naive_log))
+    spent["rivals"] += t1 - t0
+    spent["search"] += time.perf_counter() - t1
+    if not runs:
+        unplanned.append({"separates": list(confusion.separates), "kind": confusion.kind,
+                          "why": "no program within the limits separates them (widen "
+                                 "--pressures, --stroke-range, --max-speed or "
+                                 "--max-duration)"})
+        return
+    for run, (best, expected) in enumerate(runs):
+        t, x = best.sample(limits)
+        k = len(programs) + 1
+        programs.append(PlannedProgram(
+            file=f"program_{k}.csv", supply_bar=best.supply_bar,
+            start_position_mm=best.start_position_mm, duration_s=float(t[-1]),
+            rate_hz=limits.rate_hz, program=best.describe(), kind=confusion.kind,
+            separates=confusion.separates, expected=_public(expected),
+            naive={"program": f"the log {naive_log.name} replayed",
+                   **_public(naive)},
+            why=_why(confusion, best, expected, naive, run=run),
+            time_s=t, displacement_mm=x / MM,
+            predicted_N=scorer.predicted(best, expected)))
+
 
 
 def _settled_by_logs(confusion: Confusion, scorer: _Scorer, noise: Noise) -> str:

@@ -15,7 +15,8 @@ Kinds, in the order a plan takes them:
 ``undecided``   a candidate whose screen is significant on the final model but that the
                 held-out rule did not accept, against its absence (or against another such
                 candidate whose screen log p-value is within :data:`SCREEN_TIE` of its own);
-                planned only when no tie, rival or untestable effect is (:func:`deferred`);
+                planned only when no tie, rival or untestable effect gets runs
+                (:func:`deferred`);
 ``requested``   what the user named (``--separate a,b`` or ``--separate a``).
 
 A pair of effects is fitted as the final model with the one in place of the other; a single
@@ -135,8 +136,9 @@ def confusions(diagnosis: Diagnosis, *, separate: Sequence[str] | None = None
 
 
 def deferred(found: Sequence[Confusion]) -> tuple[list[Confusion], list[Confusion]]:
-    """``found`` split into the confusions to plan now and those deferred: the undecided
-    ones, while a tie, a rival or an untestable effect is planned.
+    """``found`` split into the confusions to plan first and those deferred: the undecided
+    ones, while a tie, a rival or an untestable effect is there (:func:`~fitstiff.planning.plan`
+    plans the deferred ones when the logs settle all of those, or no program can).
 
     What settles those comes first. A candidate significant on the final model while such a
     question stands may be its shadow: with one logged pressure, Maxwell-slip was significant
