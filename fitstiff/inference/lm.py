@@ -50,7 +50,8 @@ from jax import lax
 
 from fitstiff._jax import jax, jnp
 
-__all__ = ["levenberg_marquardt", "jacobian_rows", "wide_dot", "r_factor", "LMResult",
+__all__ = ["levenberg_marquardt", "levenberg_marquardt_reduced", "Linearisation",
+           "jacobian_rows", "wide_dot", "r_factor", "LMResult",
            "CONVERGED", "MAX_STEPS", "NONFINITE", "STALLED", "STATUS"]
 
 CONVERGED, MAX_STEPS, NONFINITE, STALLED = 0, 1, 2, 3
@@ -90,11 +91,46 @@ def _jac_norms(jac):
     return jnp.linalg.norm(jac, axis=0)
 
 
-def _cosine(g, norms, r):
-    """Largest cosine between the residual vector and a Jacobian column (0 for a column of
-    zeros, e.g. a padding entry)."""
-    denom = norms * jnp.linalg.norm(r)
+def _cosine(g, norms, r_norm):
+    """Largest cosine between the residual vector (of norm ``r_norm``) and a Jacobian column
+    (0 for a column of zeros, e.g. a padding entry)."""
+    denom = norms * r_norm
     return jnp.max(jnp.where(denom > 0, jnp.abs(g) / jnp.where(denom > 0, denom, 1.0), 0.0))
+
+
+def _scales(d):
+    """The column scales of a step: the running maxima ``d``, floored."""
+    floor = 1e-12 * jnp.maximum(jnp.max(d), 1e-300)
+    return jnp.maximum(d, floor)
+
+
+def _normal_step(gram, g, lam, d):
+    """The damped step of the normal equations ``(J^T J + lam D^2) d = -J^T r`` and the
+    decrease of the cost the linear model predicts for it."""
+    lhs = gram + lam * jnp.diag(d**2)
+    step = jax.scipy.linalg.cho_solve(jax.scipy.linalg.cho_factor(lhs), -g)
+    return step, -(2.0 * step @ g + step @ (gram @ step))
+
+
+def _gain(cost, cost_new, predicted):
+    """The gain ratio ``rho`` and whether the trial is accepted."""
+    rho = (cost - cost_new) / jnp.where(predicted > 0, predicted, jnp.inf)
+    return rho, jnp.isfinite(cost_new) & (rho > 1e-4)
+
+
+def _done(step, z_new, cost, cost_new, predicted, g, norms, r_norm, rtol, atol):
+    """Whether an accepted step ends the solve (the tests of the module docstring)."""
+    small_step = jnp.all(jnp.abs(step) <= atol + rtol * jnp.abs(z_new))
+    small_cost = jnp.abs(cost - cost_new) <= atol + rtol * cost
+    # MINPACK's ftol test: the actual and the predicted decrease both negligible
+    # (ends a parameter's slow walk towards a bound in the transformed coordinates)
+    flat = (jnp.abs(cost - cost_new) <= rtol * cost) & (predicted <= rtol * cost)
+    return (small_step & small_cost) | flat | (_cosine(g, norms, r_norm) <= _GTOL)
+
+
+def _damped(lam, rho):
+    """The damping after an accepted step of gain ``rho`` (Nielsen)."""
+    return lam * jnp.maximum(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
 
 
 def jacobian_rows(fn: Callable[[jax.Array], jax.Array], z: jax.Array, *,
@@ -165,22 +201,16 @@ def levenberg_marquardt(fn: Callable[[jax.Array], jax.Array], z0: jax.Array, *,
     z0 = jnp.asarray(z0, dtype=float)
     r0, q0, rr0, g0, d0, jac_finite = _linearise(fn, z0, normal)
     finite = jnp.all(jnp.isfinite(r0)) & jac_finite
-    status0 = jnp.where(~finite, NONFINITE, jnp.where(_cosine(g0, d0, r0) <= _GTOL,
-                                                      CONVERGED, -1))
+    status0 = jnp.where(~finite, NONFINITE, jnp.where(
+        _cosine(g0, d0, jnp.linalg.norm(r0)) <= _GTOL, CONVERGED, -1))
     init = _State(z0, r0, q0, rr0, g0, d0, jnp.asarray(_LAM0), jnp.asarray(2.0),
                   jnp.asarray(0), status0)
     n = z0.size
 
-    def scales(s):
-        floor = 1e-12 * jnp.maximum(jnp.max(s.d), 1e-300)
-        return jnp.maximum(s.d, floor)
-
     def trial_step(s: _State, d):
         """The damped step and the decrease of the cost the linear model predicts for it."""
         if normal:
-            lhs = s.rr + s.lam * jnp.diag(d**2)
-            step = jax.scipy.linalg.cho_solve(jax.scipy.linalg.cho_factor(lhs), -s.g)
-            return step, -(2.0 * step @ s.g + step @ (s.rr @ step))
+            return _normal_step(s.rr, s.g, s.lam, d)
         lhs = jnp.concatenate([s.rr, jnp.sqrt(s.lam) * jnp.diag(d)])
         rhs = jnp.concatenate([-(s.q.T @ s.r), jnp.zeros(n)])
         step = jnp.linalg.lstsq(lhs, rhs)[0]
@@ -188,32 +218,25 @@ def levenberg_marquardt(fn: Callable[[jax.Array], jax.Array], z0: jax.Array, *,
         return step, s.r @ s.r - (s.r + jd) @ (s.r + jd)
 
     def body(s: _State) -> _State:
-        step, predicted = trial_step(s, scales(s))
+        step, predicted = trial_step(s, _scales(s.d))
         z_new = s.z + step
         r_new = fn(z_new)
         cost = s.r @ s.r
         cost_new = r_new @ r_new
-        rho = (cost - cost_new) / jnp.where(predicted > 0, predicted, jnp.inf)
-        ok = jnp.isfinite(cost_new) & (rho > 1e-4)
+        rho, ok = _gain(cost, cost_new, predicted)
 
         def accept(_):
             r, q, rr, g, norms, _ = _linearise(fn, z_new, normal)
-            small_step = jnp.all(jnp.abs(step) <= atol + rtol * jnp.abs(z_new))
-            small_cost = jnp.abs(cost - cost_new) <= atol + rtol * cost
-            # MINPACK's ftol test: the actual and the predicted decrease both negligible
-            # (ends a parameter's slow walk towards a bound in the transformed coordinates)
-            flat = (jnp.abs(cost - cost_new) <= rtol * cost) & (predicted <= rtol * cost)
-            done = ((small_step & small_cost) | flat
-                    | (_cosine(g, norms, r) <= _GTOL))
-            lam = s.lam * jnp.maximum(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
+            done = _done(step, z_new, cost, cost_new, predicted, g, norms,
+                         jnp.linalg.norm(r), rtol, atol)
             return _State(z_new, r, q, rr, g, jnp.maximum(s.d, norms),
-                          lam, jnp.asarray(2.0), s.steps + 1,
+                          _damped(s.lam, rho), jnp.asarray(2.0), s.steps + 1,
                           jnp.where(done, CONVERGED, -1))
 
         def reject(_):
             lam = s.lam * s.nu
             # no step of any length decreases the cost: a minimum if the gradient vanishes
-            at_minimum = _cosine(s.g, s.d, s.r) <= _STALL_GTOL
+            at_minimum = _cosine(s.g, s.d, jnp.linalg.norm(s.r)) <= _STALL_GTOL
             return s._replace(lam=lam, nu=s.nu * 2.0, steps=s.steps + 1,
                               status=jnp.where(lam > _LAM_MAX, jnp.where(
                                   at_minimum, CONVERGED, STALLED), -1))
@@ -224,3 +247,53 @@ def levenberg_marquardt(fn: Callable[[jax.Array], jax.Array], z0: jax.Array, *,
 
     final = lax.while_loop(lambda s: s.status < 0, body, init)
     return LMResult(final.z, final.status, final.steps, final.r @ final.r)
+
+
+class Linearisation(NamedTuple):
+    """What the normal-equations form needs of the residuals ``r`` and their Jacobian ``J``
+    at a point, reduced (:func:`levenberg_marquardt_reduced`)."""
+
+    cost: jax.Array         # |r|^2
+    gram: jax.Array         # J^T J
+    gradient: jax.Array     # J^T r
+    norms: jax.Array        # the column norms of J
+    finite: jax.Array       # r and J finite
+
+
+def levenberg_marquardt_reduced(linearise: Callable[[jax.Array], Linearisation],
+                                cost: Callable[[jax.Array], jax.Array], z0, *,
+                                rtol: float = 1e-6, atol: float = 1e-6,
+                                max_steps: int = 200) -> LMResult:
+    """:func:`levenberg_marquardt` with ``normal=True``, step for step, driven from Python
+    over reductions of the residuals instead of the residual vector: ``linearise(z)`` gives
+    the :class:`Linearisation` at ``z``, ``cost(z)`` the cost ``|r(z)|^2`` at a trial point.
+    For residuals that are never whole at once: a long log's, accumulated window by window
+    (:mod:`fitstiff.inference.chunks`). The same steps, tests and status codes."""
+    z = jnp.asarray(z0, dtype=float)
+    lin = linearise(z)
+    if not bool(jnp.isfinite(lin.cost)) or not bool(lin.finite):
+        return LMResult(z, jnp.asarray(NONFINITE), jnp.asarray(0), lin.cost)
+    status = CONVERGED if bool(_cosine(lin.gradient, lin.norms, jnp.sqrt(lin.cost)) <= _GTOL) \
+        else -1
+    d, lam, nu, steps = lin.norms, _LAM0, 2.0, 0
+    while status < 0:
+        step, predicted = _normal_step(lin.gram, lin.gradient, lam, _scales(d))
+        z_new = z + step
+        cost_new = cost(z_new)
+        rho, ok = _gain(lin.cost, cost_new, predicted)
+        steps += 1
+        if bool(ok):
+            new = linearise(z_new)
+            done = _done(step, z_new, lin.cost, cost_new, predicted, new.gradient, new.norms,
+                         jnp.sqrt(new.cost), rtol, atol)
+            z, d, lam, nu = z_new, jnp.maximum(d, new.norms), _damped(lam, rho), 2.0
+            lin = new
+            status = CONVERGED if bool(done) else -1
+        else:
+            lam, nu = lam * nu, nu * 2.0
+            if lam > _LAM_MAX:
+                at_minimum = _cosine(lin.gradient, d, jnp.sqrt(lin.cost)) <= _STALL_GTOL
+                status = CONVERGED if bool(at_minimum) else STALLED
+        if status < 0 and steps >= max_steps:
+            status = MAX_STEPS
+    return LMResult(z, jnp.asarray(status), jnp.asarray(steps), lin.cost)

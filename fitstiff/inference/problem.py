@@ -46,10 +46,15 @@ from fitstiff.segments.denoise import (chatters, denoise_displacement, reversal_
 from fitstiff.segments.segmentation import Segmentation, segment
 from fitstiff.signal.noise import estimate_noise, marginal_scale, noise_floor
 
-__all__ = ["Problem", "compiled_batch", "ResidualSeries", "channel_noise", "CHANNELS"]
+__all__ = ["Problem", "compiled_batch", "ResidualSeries", "channel_noise", "CHANNELS",
+           "CHUNKED_ROWS"]
 
 #: the observed channels of a log, in the order of the residual vector
 CHANNELS = ("force", "pressure_a", "pressure_b")
+#: a problem whose residual vector would exceed this many entries (samples times logged
+#: channels, all logs) is fitted in windows of its logs (:mod:`fitstiff.inference.chunks`),
+#: its per-sample arrays kept on the host: from about 2.8 M samples with two logged pressures
+CHUNKED_ROWS = 2**23
 _DEFAULT_CLOSING_PA = 5e5      # gauge start value when neither rig nor log says more
 _PRESSURE_NOISE_FLOOR = 10.0   # Pa, below any real sensor
 _FORCE_NOISE_FLOOR = 1e-3      # N
@@ -76,6 +81,10 @@ class Problem:
             pauses, regions, displacement noise), e.g. from
             :func:`~fitstiff.segments.segmentation.segment` with other options; default
             ``segment(log)`` for each log.
+        chunked: keep the per-sample arrays as NumPy arrays on the host (views of the logs'
+            where they can be) and fit in windows of the logs
+            (:mod:`fitstiff.inference.chunks`: memory bounded in the log's length); default
+            (``None``): when the residual vector would exceed :data:`CHUNKED_ROWS` entries.
 
     A problem is immutable: every attribute is set by the constructor. Compiled functions of
     it are made by :meth:`compiled`.
@@ -84,7 +93,8 @@ class Problem:
     def __init__(self, logs: Sequence[Log], model: Model | str, *,
                  fix: Mapping[str, float | None] | Iterable[str] = (),
                  selection: Selection | None = None,
-                 segmentations: Sequence[Segmentation] | None = None, **options):
+                 segmentations: Sequence[Segmentation] | None = None,
+                 chunked: bool | None = None, **options):
         if not logs:
             raise InputError(None, "logs", "none given", "name at least one CSV log")
         self.selection = selection = Selection.given(selection, options)
@@ -95,6 +105,8 @@ class Problem:
                              f"use one of: {', '.join(OPTIONAL_NUISANCES)}")
         self.logs = list(logs)
         check_logs(self.logs)
+        self.chunked = host = bool(_rows(self.logs) > CHUNKED_ROWS if chunked is None
+                                   else chunked)
         self.segmentations: list[Segmentation] = _segmentations(self.logs, segmentations)
         spec = model if isinstance(model, str) else model.spec
         needs = model_needs(model)
@@ -105,23 +117,27 @@ class Problem:
         for log, seg, den in zip(self.logs, self.segmentations, self.denoised):
             drive = drive_from_log(log, needs_chamber=needs.chamber_geometry, still=seg.still,
                                    what=f"model '{spec}'",
-                                   needs_supply="closing_pressure" not in free)
+                                   needs_supply="closing_pressure" not in free, host=host)
+            array = np.asarray if host else jnp.asarray
             if den:
                 x = denoise_displacement(log.displacement, seg.reversals, noise=seg.noise)
-                drive = drive.with_displacement(x)
+                drive = (dataclasses.replace(drive, displacement=x) if host
+                         else drive.with_displacement(x))
                 if log.time is not None:
                     v = segment_velocity(x, log.time, seg.reversals, noise=seg.noise)
                     a = (smooth_acceleration(log.displacement, log.time, noise=seg.noise)
                          if needs.acceleration else None)
-                    drive = dataclasses.replace(drive, velocity=jnp.asarray(v),
-                                                acceleration=None if a is None
-                                                else jnp.asarray(a))
+                    drive = dataclasses.replace(drive, velocity=array(v),
+                                                acceleration=None if a is None else array(a))
             self.drives.append(drive)
         self.drives = same_structure(self.drives)
+        if host:
+            self.drives = [jax.tree.map(np.asarray, d) for d in self.drives]
         built = build_model(model, drives=self.drives) if isinstance(model, str) else model
         force_noise = [channel_noise(log.force) for log in self.logs]
         if any(t.needs_measured_force for t in built.terms):
-            self.drives = [eqx.tree_at(lambda d: d.measured_force, d, jnp.asarray(
+            self.drives = [eqx.tree_at(lambda d: d.measured_force, d, (
+                np.asarray if host else jnp.asarray)(
                 smooth_force(log.force, log.time, noise=sigma)))
                 for d, log, sigma in zip(self.drives, self.logs, force_noise)]
         fixed_values = ({k: v for k, v in fix.items() if v is not None}
@@ -153,7 +169,7 @@ class Problem:
             selection.sample_weights(len(log), seg, where=log.path and str(log.path) or log.name)
             for log, seg in zip(self.logs, self.segmentations)]
         self._groups = build_groups(self.drives, self.logs, self.sample_weights, self.force_noise,
-                                    self.pressure_noise)
+                                    self.pressure_noise, host=host)
         self._compiled: dict[tuple, Callable] = {}
         self._reversal_noise: tuple | None = None
         self.n_data = int(sum(int(np.count_nonzero(np.asarray(g.weight))) + sum(
@@ -324,7 +340,8 @@ class Problem:
                     row[reversal_samples(x, seg.reversals)] = (self.displacement_noise[i]
                                                                * marginal_scale(rho))
                 rows.append(row)
-            out.append(jnp.asarray(np.stack(rows)))
+            out.append(rows[0][None] if self.chunked and len(rows) == 1
+                       else np.stack(rows) if self.chunked else jnp.asarray(np.stack(rows)))
         object.__setattr__(self, "_reversal_noise", tuple(out))     # computed once, on demand
         return self._reversal_noise
 
@@ -396,8 +413,19 @@ class Problem:
                 rows[i] = jnp.stack([drive.p_a0[row], drive.p_b0[row]])
         return jnp.stack(rows)
 
+    @functools.cached_property
+    def windows(self):
+        """The windows a chunked problem is fitted in
+        (:class:`~fitstiff.inference.chunks.Windows`)."""
+        from fitstiff.inference.chunks import Windows
+
+        return Windows(self)
+
     def per_log(self, theta) -> list[dict[str, np.ndarray]]:
-        """Per log (in order): predicted force, per-term forces and pressures, unpadded."""
+        """Per log (in order): predicted force, per-term forces and pressures, unpadded (a
+        chunked problem's window by window)."""
+        if self.chunked:
+            return self.windows.predict(jnp.asarray(theta))
         out: list[dict[str, np.ndarray] | None] = [None] * self.n_logs
         predictions = self.compiled(Problem.predictions)
         for group, pred in zip(self._groups, predictions(theta)):
@@ -477,6 +505,12 @@ class Problem:
         for name, value in zip(("_groups", "drives", "_reversal_noise"), arrays):
             object.__setattr__(bound, name, value)
         return bound
+
+
+def _rows(logs: Sequence[Log]) -> int:
+    """The residual vector's length at most: each log's samples times its logged channels."""
+    return sum(len(log) * (1 + (log.pressure_a is not None) + (log.pressure_b is not None))
+               for log in logs)
 
 
 def _segmentations(logs: Sequence[Log], given: Sequence[Segmentation] | None

@@ -41,10 +41,21 @@ class Group(eqx.Module):
 
 def build_groups(drives: Sequence[Drive], logs: Sequence[Log],
                  sample_weights: Sequence[np.ndarray], force_noise: Sequence[float],
-                 pressure_noise: Sequence[Mapping[str, float]]) -> list[Group]:
+                 pressure_noise: Sequence[Mapping[str, float]], *,
+                 host: bool = False) -> list[Group]:
     """Logs of one structure (chamber modes, observed channels, time) are stacked and run
     as one ``vmap``-ed scan, padded to the longest; logs much shorter than the longest
-    start their own stack (:data:`PAD_RATIO`), so padding wastes little work."""
+    start their own stack (:data:`PAD_RATIO`), so padding wastes little work. ``host``: the
+    stacks are NumPy arrays, a log alone in its stack a view of its arrays (no copy)."""
+    if host:
+        def stack(xs):
+            xs = [np.asarray(x) for x in xs]
+            return xs[0][None] if len(xs) == 1 else np.stack(xs)
+        array = np.asarray
+    else:
+        def stack(xs):
+            return jnp.stack(xs)
+        array = jnp.asarray
     keys: dict[tuple, list[int]] = {}
     for i, d in enumerate(drives):
         keys.setdefault((d.modes, d.observed, d.has_time), []).append(i)
@@ -54,10 +65,10 @@ def build_groups(drives: Sequence[Drive], logs: Sequence[Log],
     for index in stacks:
         n_max = max(len(drives[i]) for i in index)
         padded = same_closed_forms([pad_drive(drives[i], n_max) for i in index])
-        stacked = jax.tree.map(lambda *xs: jnp.stack(xs), *padded)
-        force = np.stack([pad(logs[i].force, n_max) for i in index])
-        weight = np.stack([pad(sample_weights[i], n_max, fill=0.0)
-                           / force_noise[i] for i in index])
+        stacked = jax.tree.map(lambda *xs: stack(xs), *padded)
+        force = stack([pad(logs[i].force, n_max) for i in index])
+        weight = stack([pad(sample_weights[i], n_max, fill=0.0)
+                        / force_noise[i] for i in index])
         pressures, pressure_weights = [], []
         for c, chamber in enumerate(("a", "b")):
             if not drives[index[0]].observed[c]:
@@ -65,12 +76,12 @@ def build_groups(drives: Sequence[Drive], logs: Sequence[Log],
                 pressure_weights.append(None)
                 continue
             attr = f"pressure_{chamber}"
-            pressures.append(jnp.asarray(np.stack(
+            pressures.append(array(stack(
                 [pad(getattr(logs[i], attr), n_max) for i in index])))
-            pressure_weights.append(jnp.asarray(np.stack(
+            pressure_weights.append(array(stack(
                 [pad(sample_weights[i] > 0, n_max, fill=0.0).astype(float)
                  / pressure_noise[i][chamber] for i in index])))
-        groups.append(Group(tuple(index), stacked, jnp.asarray(force), jnp.asarray(weight),
+        groups.append(Group(tuple(index), stacked, array(force), array(weight),
                             tuple(pressures), tuple(pressure_weights)))
     return groups
 

@@ -98,6 +98,19 @@ class Drive(eqx.Module):
         leaves them."""
         return dataclasses.replace(self, displacement=x, log_volume_ratios=None)
 
+    def window(self, start: int, stop: int | None = None) -> Drive:
+        """The samples ``[start, stop)`` of this drive (the rig values and nuisances kept),
+        without the runs and the log volume ratios, which are the whole displacement's."""
+        def cut(a):
+            return None if a is None else a[start:stop]
+
+        return dataclasses.replace(
+            self, time=cut(self.time), displacement=cut(self.displacement),
+            pressure_a=cut(self.pressure_a), pressure_b=cut(self.pressure_b),
+            still=cut(self.still), velocity=cut(self.velocity),
+            acceleration=cut(self.acceleration), measured_force=cut(self.measured_force),
+            runs=None, log_volume_span=None, log_volume_ratios=None)
+
     @property
     def seal_pressure(self):
         """Per-sample mean gauge pressure of the two chambers (Pa): the seal's normal load.
@@ -119,7 +132,7 @@ def make_drive(*, displacement, time=None, rig: Rig | None = None, pressure_a=No
                pressure_b=None, vented=(), still=None, name: str = "",
                needs_chamber: bool = False, needs_supply: bool = True,
                friction_state0: float = 0.0, force_offset: float = 0.0,
-               what: str = "the chamber term") -> Drive:
+               what: str = "the chamber term", host: bool = False) -> Drive:
     """Build a drive from arrays (SI; pressures absolute).
 
     ``needs_chamber``: require the rig values the chamber force needs (bore; and stroke,
@@ -128,6 +141,9 @@ def make_drive(*, displacement, time=None, rig: Rig | None = None, pressure_a=No
     ``needs_supply=False``: the closing pressure will be fitted, so a missing
     ``supply_bar`` is no error and logged pressures are observations of closed chambers
     (closed chambers start at ambient until the fit sets the closing pressure).
+    ``host=True``: the per-sample arrays stay NumPy arrays (views of the inputs where they
+    are float64 already: no copy), without the runs and the log volume ratios, for a long
+    log run in windows (:meth:`Drive.window`, :mod:`fitstiff.inference.chunks`).
     """
     rig = rig or Rig()
     x = np.asarray(displacement, dtype=float)
@@ -160,20 +176,21 @@ def make_drive(*, displacement, time=None, rig: Rig | None = None, pressure_a=No
             l_b0 = stroke - x0 + (rig.dead_length_b or 0.0)
             _check_chamber_lengths(x, l_a0, l_b0, modes, rig=rig, name=name)
     p0 = (supply if supply is not None else 0.0) + p_amb
-    span = log_volume_span(x, l_a0, l_b0, modes)
+    span = None if host else log_volume_span(x, l_a0, l_b0, modes)
+    array = np.asarray if host else jnp.asarray
     zeros = np.zeros(n)
     return Drive(
-        time=jnp.asarray(t), displacement=jnp.asarray(x),
-        pressure_a=jnp.asarray(zeros if pressure_a is None else np.asarray(pressure_a, float)),
-        pressure_b=jnp.asarray(zeros if pressure_b is None else np.asarray(pressure_b, float)),
-        still=jnp.asarray(zeros if still is None else np.asarray(still, dtype=float)),
+        time=array(t), displacement=array(x),
+        pressure_a=array(zeros if pressure_a is None else np.asarray(pressure_a, float)),
+        pressure_b=array(zeros if pressure_b is None else np.asarray(pressure_b, float)),
+        still=array(zeros if still is None else np.asarray(still, dtype=float)),
         area_a=jnp.asarray(area_a), area_b=jnp.asarray(area_b),
         l_a0=jnp.asarray(l_a0), l_b0=jnp.asarray(l_b0),
         p_a0=jnp.asarray(p0), p_b0=jnp.asarray(p0), p_amb=jnp.asarray(p_amb),
         friction_state0=jnp.asarray(float(friction_state0)),
         force_offset=jnp.asarray(float(force_offset)),
         modes=(modes[0], modes[1]), observed=(observed[0], observed[1]), has_time=has_time,
-        name=name, runs=find_runs(x), log_volume_span=span,
+        name=name, runs=None if host else find_runs(x), log_volume_span=span,
         log_volume_ratios=log_volume_ratios(x, l_a0, l_b0, span))
 
 
@@ -238,11 +255,12 @@ def _check_chamber_lengths(x: np.ndarray, l_a0: float, l_b0: float, modes, *, ri
 
 
 def drive_from_log(log: Log, *, needs_chamber: bool = False, needs_supply: bool = True,
-                   still=None, what: str = "the chamber term") -> Drive:
-    """The drive of a :class:`~fitstiff.io.log.Log`."""
+                   still=None, what: str = "the chamber term", host: bool = False) -> Drive:
+    """The drive of a :class:`~fitstiff.io.log.Log` (``host``: see :func:`make_drive`)."""
     drive = make_drive(displacement=log.displacement, time=log.time, rig=log.rig,
                        pressure_a=log.pressure_a, pressure_b=log.pressure_b,
                        vented=log.vented, still=still, name=log.name,
-                       needs_chamber=needs_chamber, needs_supply=needs_supply, what=what)
-    return eqx.tree_at(lambda d: d.measured_force, drive, jnp.asarray(log.force),
-                       is_leaf=lambda v: v is None)
+                       needs_chamber=needs_chamber, needs_supply=needs_supply, what=what,
+                       host=host)
+    force = np.asarray(log.force, dtype=float) if host else jnp.asarray(log.force)
+    return eqx.tree_at(lambda d: d.measured_force, drive, force, is_leaf=lambda v: v is None)

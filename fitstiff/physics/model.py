@@ -191,34 +191,12 @@ class Model(eqx.Module):
         return Step(t=t, dt=dt, x=x, dx=dx, v=v, a=a, p_a=drive.pressure_a,
                     p_b=drive.pressure_b, still=drive.still)
 
-    # long: the scan body's closures step the terms with the modulation they share
-    def run(self, drive: Drive) -> Prediction:
-        """Run the scan: total force, per-term forces and the chamber pressures.
-
-        Terms that no modifier acts on are evaluated over all samples at once when they can be
-        (:meth:`~fitstiff.physics.terms.base.Term.run_all`: stateless terms, the polytropic chamber,
-        Dahl over the drive's monotone runs), unless a series compliance couples every term to
-        the piston motion; only the rest is stepped in the ``lax.scan``. The results are the
-        same; the scan body is smaller (under ``vmap`` over the posterior's walkers its
-        per-step cost dominates).
-        """
+    def _stepper(self, drive: Drive, scanned: Sequence[ForceSource]):
+        """The scan body stepping the modifiers and the force sources ``scanned`` (with the
+        Newton iteration of a series compliance): ``body((states, x_piston), step) ->
+        ((states, x_piston), (forces, p_a, p_b))``."""
         modifiers = self.terms_of(Modifier)
-        forcing = self.terms_of(ForceSource)
         series = self.terms_of(SeriesTerm)
-        steps = self.steps(drive)
-        if self.terms_of(InputTerm):
-            # the runs and the chamber span are the drive's displacement's, not the
-            # transformed one's
-            drive = dataclasses.replace(drive, runs=None, log_volume_span=None,
-                                        log_volume_ratios=None)
-        targeted = tuple(m.targets for m in modifiers)
-        direct = {}
-        if not series:
-            for i, term in enumerate(forcing):
-                out = None if isinstance(term, targeted) else term.run_all(steps, drive)
-                if out is not None:
-                    direct[i] = out
-        scanned = [t for i, t in enumerate(forcing) if i not in direct]
         chamber = next((t for t in scanned if isinstance(t, Chamber)), None)
 
         def evaluate(states, s):
@@ -262,19 +240,91 @@ class Model(eqx.Module):
             new_states, out = at(dxp)
             return (new_states, x_piston + dxp), out
 
+        return body
+
+    def _initial(self, drive: Drive, scanned: Sequence[ForceSource], x0):
+        """The scan's carry at the drive's first sample (``x0``: the piston's position)."""
+        return ((tuple(t.init(drive) for t in self.terms_of(Modifier)),
+                 tuple(t.init(drive) for t in scanned)), x0)
+
+    def _input_free(self, drive: Drive) -> Drive:
+        """``drive`` without the runs and the chamber span where input terms transform the
+        displacement (they are the drive's displacement's, not the transformed one's)."""
+        if self.terms_of(InputTerm):
+            return dataclasses.replace(drive, runs=None, log_volume_span=None,
+                                       log_volume_ratios=None)
+        return drive
+
+    def run(self, drive: Drive) -> Prediction:
+        """Run the scan: total force, per-term forces and the chamber pressures.
+
+        Terms that no modifier acts on are evaluated over all samples at once when they can be
+        (:meth:`~fitstiff.physics.terms.base.Term.run_all`: stateless terms, the polytropic chamber,
+        Dahl over the drive's monotone runs), unless a series compliance couples every term to
+        the piston motion; only the rest is stepped in the ``lax.scan``. The results are the
+        same; the scan body is smaller (under ``vmap`` over the posterior's walkers its
+        per-step cost dominates).
+        """
+        modifiers = self.terms_of(Modifier)
+        forcing = self.terms_of(ForceSource)
+        steps = self.steps(drive)
+        drive = self._input_free(drive)
+        targeted = tuple(m.targets for m in modifiers)
+        direct = {}
+        if not self.terms_of(SeriesTerm):
+            for i, term in enumerate(forcing):
+                out = None if isinstance(term, targeted) else term.run_all(steps, drive)
+                if out is not None:
+                    direct[i] = out
+        scanned = [t for i, t in enumerate(forcing) if i not in direct]
         n = steps.x.shape[0]
         p_a = p_b = drive.p_amb
         columns = {}
         if scanned:
-            init = (tuple(t.init(drive) for t in modifiers),
-                    tuple(t.init(drive) for t in scanned))
-            _, (stepped, p_a, p_b) = jax.lax.scan(body, (init, steps.x[0]), steps)
+            _, (stepped, p_a, p_b) = jax.lax.scan(self._stepper(drive, scanned),
+                                                  self._initial(drive, scanned, steps.x[0]),
+                                                  steps)
             columns = {forcing.index(t): stepped[:, k] for k, t in enumerate(scanned)}
         for i, (states, force) in direct.items():
             columns[i] = jnp.broadcast_to(force, (n,))
             if isinstance(forcing[i], Chamber):
                 p_a, p_b = forcing[i].pressures(states, steps, drive)
-        forces = jnp.stack([columns[i] for i in range(len(forcing))], axis=1)
+        return self._prediction(drive, [columns[i] for i in range(len(forcing))], p_a, p_b, n)
+
+    def run_window(self, drive: Drive, carry=None, *, start: int, length: int
+                   ) -> tuple[Prediction, object]:
+        """Step every force source over the samples ``[start, start + length)`` of ``drive``
+        from the scan state ``carry`` (``None``: the initial state at sample ``start``), and
+        return their prediction with the state after them.
+
+        A long log runs as consecutive windows of this (:mod:`fitstiff.inference.chunks`):
+        ``drive`` is a stretch of the log with margins around the window (samples that the
+        per-sample inputs read: the previous sample's displacement and time, the next one's
+        velocity, an input term's reach, :meth:`reach`), and the state is carried from one
+        window to the next. Stepping everything (no closed form over all samples) is the same
+        law; the results equal :meth:`run`'s on the whole log up to rounding.
+        """
+        forcing = self.terms_of(ForceSource)
+        steps = self.steps(drive)
+        drive = self._input_free(drive)
+        window = jax.tree.map(lambda a: jax.lax.slice_in_dim(a, start, start + length), steps)
+        if carry is None:
+            carry = self._initial(drive.window(start), forcing, window.x[0])
+        carry, (stepped, p_a, p_b) = jax.lax.scan(self._stepper(drive, forcing), carry, window)
+        prediction = self._prediction(drive, [stepped[:, k] for k in range(len(forcing))],
+                                      p_a, p_b, length)
+        return prediction, carry
+
+    def reach(self, dt: float) -> int:
+        """Samples before and after a window that :meth:`run_window` reads to step it at the
+        sampling interval ``dt`` (s): one either side (differences), plus what an input term
+        reads (:meth:`~fitstiff.physics.terms.base.InputTerm.reach_s`)."""
+        seconds = max((t.reach_s() for t in self.terms_of(InputTerm)), default=0.0)
+        return 2 + (math.ceil(seconds / dt) if seconds > 0 else 0)
+
+    @staticmethod
+    def _prediction(drive: Drive, columns, p_a, p_b, n: int) -> Prediction:
+        forces = jnp.stack(columns, axis=1)
         return Prediction(force=jnp.sum(forces, axis=1) + drive.force_offset,
                           contributions=forces, pressure_a=jnp.broadcast_to(p_a, (n,)),
                           pressure_b=jnp.broadcast_to(p_b, (n,)))

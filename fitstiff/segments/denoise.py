@@ -220,27 +220,44 @@ def segment_velocity(displacement: np.ndarray, time: np.ndarray, reversals: np.n
     m = int(np.clip(np.ceil((40.0 * noise / step) ** (2 / 3)), 2, 50)) if noise > 0 else 1
     cuts = np.unique(np.concatenate([[0], _extrema(x, np.asarray(reversals, dtype=int)),
                                      [n - 1]]))
-    seg = np.searchsorted(cuts, np.arange(n), side="right") - 1   # reversal -> next segment
+    v = np.empty(n)
+    for start in range(0, n, _BLOCK):           # a block at a time: memory bounded in n
+        idx = np.arange(start, min(start + _BLOCK, n))
+        v[idx] = _local_slopes(x, t, idx, cuts, m)
+    return v
+
+
+#: samples per block of :func:`segment_velocity` (its working set is about 20 arrays of this)
+_BLOCK = 2**18
+
+
+def _local_slopes(x: np.ndarray, t: np.ndarray, idx: np.ndarray, cuts: np.ndarray,
+                  m: int) -> np.ndarray:
+    """:func:`segment_velocity` at the samples ``idx``: the slope of ``x`` against ``t`` over up
+    to ``m`` samples either side within the segment between ``cuts``."""
+    n = x.shape[0]
+    seg = np.searchsorted(cuts, idx, side="right") - 1   # reversal -> next segment
     seg = np.minimum(seg, len(cuts) - 2)
     # a reversal sample belongs to the segment it ends
-    at_cut = np.isin(np.arange(n), cuts[1:-1])
+    at_cut = np.isin(idx, cuts[1:-1])
     seg[at_cut] -= 1
-    idx = np.arange(n)
     lo = np.maximum(idx - m, cuts[seg])
     hi = np.minimum(idx + m, cuts[seg + 1])
     # window sums with time and displacement taken relative to the window's own sample, so
     # that neither a long log nor a long pause in it (t - t[0] of 1e9 s and more) costs
     # precision or overflows, as running sums over the whole log would
-    cnt = np.zeros(n)
-    sd = np.zeros(n)
-    sy = np.zeros(n)
-    sdd = np.zeros(n)
-    sdy = np.zeros(n)
+    size = idx.shape[0]
+    cnt = np.zeros(size)
+    sd = np.zeros(size)
+    sy = np.zeros(size)
+    sdd = np.zeros(size)
+    sdy = np.zeros(size)
+    t_here, x_here = t[idx], x[idx]
     for j in range(-m, m + 1):
         k = np.clip(idx + j, 0, n - 1)
         inside = (idx + j >= lo) & (idx + j <= hi)
-        d = np.where(inside, t[k] - t, 0.0)
-        y = np.where(inside, x[k] - x, 0.0)
+        d = np.where(inside, t[k] - t_here, 0.0)
+        y = np.where(inside, x[k] - x_here, 0.0)
         cnt += inside
         sd += d
         sy += y
@@ -249,8 +266,7 @@ def segment_velocity(displacement: np.ndarray, time: np.ndarray, reversals: np.n
     var = sdd - sd * sd / cnt
     cov = sdy - sd * sy / cnt
     with np.errstate(invalid="ignore", divide="ignore"):
-        v = np.where(var > 0, cov / var, 0.0)
-    return v
+        return np.where(var > 0, cov / var, 0.0)
 
 
 _ACCEL_NOISE = 0.05

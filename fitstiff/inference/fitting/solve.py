@@ -120,6 +120,15 @@ def _solver(problem: Problem, solver: str, rtol: float, atol: float, max_steps: 
     """The least-squares solve of ``problem``, ``theta0 -> _Run``, compiled once per
     settings and reused across starts and calls."""
     own = SOLVERS[solver] is _NormalEquationsLM
+    if problem.chunked:         # the normal equations accumulated window by window
+        windows = problem.windows
+
+        def run_windows(theta0) -> _Run:
+            sol = lm.levenberg_marquardt_reduced(windows.linearise, windows.cost, theta0,
+                                                 rtol=rtol, atol=atol, max_steps=max_steps)
+            return _as_run(True, sol.value, sol.status, sol.steps, sol.cost)
+
+        return run_windows
     compiled = problem.compiled(_solve, solver=solver, rtol=rtol, atol=atol,
                                 max_steps=max_steps)
 
@@ -176,6 +185,11 @@ def fit_problem(problem: Problem, *, solver: str = "lm", starts: int = 1, seed: 
                          f"use one of: {', '.join(SOLVERS)}")
     if starts < 1:
         raise InputError(None, f"--starts {starts}", "must be at least 1", "give 1 or more")
+    if problem.chunked and solver not in ("lm", "lm-normal"):
+        raise InputError(None, f"--solver {solver}",
+                         f"the logs ({sum(len(log) for log in problem.logs)} samples) are "
+                         "fitted in windows, by fitstiff's Levenberg-Marquardt only",
+                         "drop --solver, or fit a shorter stretch (--range)")
     model0, nuis0 = initial or initial_guess(problem)
     theta0 = problem.pack(model0, nuis0)
     solver = _lean(problem, solver)
@@ -307,7 +321,7 @@ def _flat_walk(problem: Problem, theta, cost: float, *, solver: str, rtol: float
     after, cost_after = probe.theta, probe.cost
     if not np.isfinite(cost_after):
         return theta, cost, None
-    rho = _lag1(problem, problem.per_log(after))
+    rho = _lag1(problem, problem.per_log(after))     # a chunked problem's window by window
     inflation = (1 + rho) / (1 - rho) if rho > 0 else 1.0
     variance = cost_after / max(problem.n_data - problem.size, 1) * inflation
     if cost - cost_after > _FLAT_SD**2 * variance:

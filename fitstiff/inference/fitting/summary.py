@@ -71,12 +71,14 @@ def _summarise(problem: Problem, theta, *, converged: bool, message: str, steps:
     never on the lean path)."""
     # the memory-lean summary where the solve was lean: for a long log, or when asked for
     lean = solver == "lm-normal" or _is_lean(problem)
-    if evaluated is not None and not lean:
+    if problem.chunked:
+        summary = _window_summary(problem, theta)
+    elif evaluated is not None and not lean:
         summary = jax.tree.map(np.asarray, evaluated)
     else:
         ev = problem.compiled(summary_evaluate, spans=summary_spans(problem), sequential=lean)
         summary = jax.tree.map(np.asarray, ev(theta))
-    if lean:    # apart: the two working sets of a long log do not add up
+    if lean and not problem.chunked:    # apart: the two working sets do not add up
         summary = summary._replace(eiv_gram=np.asarray(
             problem.compiled(errors_in_variables_gram)(theta)))
     check_finite(problem.logs, "the fit's whitened residuals and Jacobian", summary.largest,
@@ -297,8 +299,7 @@ def summary_evaluate(problem: Problem, theta, *, spans: tuple[tuple[tuple[int, i
     """
 
     def derived_vec(th):
-        d = derived_quantities(problem.unpack(th)[0], problem.drives[0])
-        return jnp.stack([d[k] for k in DERIVED])
+        return _derived_vector(problem, th, problem.drives[0])
 
     model, nuisances = problem.unpack(theta)
 
@@ -341,6 +342,44 @@ def summary_evaluate(problem: Problem, theta, *, spans: tuple[tuple[tuple[int, i
         state_cross=jnp.stack(cross) if cross else jnp.zeros((0, size)),
         state_norm2=jnp.stack(norm2) if norm2 else jnp.zeros(0),
         force=force, chamber_stiffness=_chamber_stiffness(problem, model), eiv_gram=eiv_gram)
+
+
+def _derived_vector(problem: Problem, theta, drive):
+    """The derived quantities at ``theta`` in :data:`DERIVED` order (``drive``: the operating
+    point of the chamber stiffness)."""
+    d = derived_quantities(problem.unpack(theta)[0], drive)
+    return jnp.stack([d[k] for k in DERIVED])
+
+
+def _window_summary(problem: Problem, theta) -> _Summary:
+    """:func:`summary_evaluate` of a chunked problem: the reductions over its windows
+    (:class:`~fitstiff.inference.chunks.Windows`), the turning points' errors by a backward
+    sweep, the parameters' part compiled on its own (no per-sample array enters it)."""
+    windows = problem.windows
+    w = windows.summary(theta)
+    start = problem.drives[0].window(0, 1)        # the operating point: rig values only
+
+    def parameters(th):
+        def derived(t):
+            return _derived_vector(problem, t, start)
+
+        return (problem.physical(th), jax.jacfwd(problem.physical)(th), derived(th),
+                jax.jacfwd(derived)(th))
+
+    values, dphys, derived, gradient = jax.tree.map(np.asarray, jax.jit(parameters)(theta))
+    model = problem.unpack(theta)[0]
+    force = []
+    for g in problem.groups:
+        n = g.force.shape[1]
+        rows = [w.force[i] if len(w.force[i]) == n else
+                np.pad(w.force[i], (0, n - len(w.force[i])), mode="edge") for i in g.index]
+        force.append(rows[0][None] if len(rows) == 1 else np.stack(rows))
+    return _Summary(
+        cost=w.cost, largest=w.largest, r_factor=w.r_factor, values=values, dphys=dphys,
+        derived=derived, gradient=gradient, state_cross=w.state_cross,
+        state_norm2=w.state_norm2, force=tuple(force),
+        chamber_stiffness=np.asarray(_chamber_stiffness(problem, model)),
+        eiv_gram=windows.errors_in_variables_gram(theta, w.starts))
 
 
 def errors_in_variables_gram(problem: Problem, theta):

@@ -240,6 +240,12 @@ class InputTerm(Term):
     def transform_input(self, drive, x):
         """The displacement the model should see, given the measured ``x``."""
 
+    def reach_s(self) -> float:
+        """How far (s) before or after a sample :meth:`transform_input` reads the
+        displacement (0: the sample alone); a log run in windows gives each window this
+        margin (:meth:`fitstiff.physics.model.Model.run_window`)."""
+        return 0.0
+
 
 class SeriesTerm(Term):
     """Role: a spring in series between the displacement sensor and the piston; the

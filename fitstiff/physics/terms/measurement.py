@@ -33,6 +33,14 @@ class TimeDelay(InputTerm):
             return x
         return jnp.interp(drive.time - self.delay, drive.time, x)
 
+    def reach_s(self) -> float:
+        """The largest delay the term can take (its bounds, or a value fixed beyond them)."""
+        bound = max(abs(p) for p in (self.params()[0].lower, self.params()[0].upper))
+        try:
+            return max(bound, abs(float(self.delay)))
+        except TypeError:          # traced
+            return bound
+
 
 class _Compliance(Term):
     """The rig's series spring, whichever way the model applies it."""
