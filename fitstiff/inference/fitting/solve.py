@@ -150,8 +150,10 @@ def _as_run(own: bool, theta, status, steps, cost) -> _Run:
 
 
 def _lean(problem: Problem, solver: str) -> str:
-    """``solver``, or ``"lm-normal"`` for ``"lm"`` on a lean problem (:func:`_is_lean`)."""
-    return "lm-normal" if solver == "lm" and _is_lean(problem) else solver
+    """``solver``, or ``"lm-normal"`` for ``"lm"`` on a lean problem (:func:`_is_lean`) or a
+    chunked one (the normal equations accumulated over its windows)."""
+    return ("lm-normal" if solver == "lm" and (problem.chunked or _is_lean(problem))
+            else solver)
 
 
 def _materialised_jacobian(f):
