@@ -96,14 +96,15 @@ def noise_floor(values: np.ndarray, *, mask: np.ndarray | None = None) -> NoiseF
     when its three samples are all in the mask); all by default.
     """
     f = np.asarray(values, dtype=np.float64)
-    keep = np.ones(f.size, dtype=bool) if mask is None else np.asarray(mask, dtype=bool)
+    keep = None if mask is None else np.asarray(mask, dtype=bool)
     if f.size < 2 * _LAGS[-1] + 8:
         return NoiseFloor(0.0, 0.0)
     d = np.empty(_LAGS.size)
     for j, k in enumerate(_LAGS):
         second = f[2 * k:] - 2.0 * f[k:-k] + f[:-2 * k]
-        ok = keep[2 * k:] & keep[k:-k] & keep[:-2 * k]
-        d[j] = robust_var(second[ok])
+        if mask is not None:          # (without one, no mask and no copy of a long log)
+            second = second[keep[2 * k:] & keep[k:-k] & keep[:-2 * k]]
+        d[j] = robust_var(second)
     if not np.all(d > 0):
         return NoiseFloor(0.0, 0.0)
     curvature = (_LAGS.astype(float) ** 4) / d          # relative to each D_k

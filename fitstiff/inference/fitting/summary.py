@@ -196,8 +196,7 @@ def _per_log(problem: Problem, predictions, summary: _Summary, model, nuisances
     per_log = []
     raw_sq, raw_n = 0.0, 0
     for i, (log, pred) in enumerate(zip(problem.logs, predictions)):
-        w = problem.sample_weights[i] > 0
-        res = (pred["force"] - np.asarray(log.force))[w]
+        res = _fitted_residuals(problem, i, pred["force"])
         raw_sq += float(res @ res)
         raw_n += res.size
         k_ch = (derived_display("chamber_stiffness_N_per_mm",
@@ -356,6 +355,7 @@ def _window_summary(problem: Problem, theta) -> _Summary:
     (:class:`~fitstiff.inference.chunks.Windows`), the turning points' errors by a backward
     sweep, the parameters' part compiled on its own (no per-sample array enters it)."""
     windows = problem.windows
+    problem.reversal_noise()        # before the summary's own arrays: its working set apart
     w = windows.summary(theta)
     start = problem.drives[0].window(0, 1)        # the operating point: rig values only
 
@@ -461,13 +461,20 @@ def implausible(problem: Problem, values: np.ndarray,
     return out
 
 
+def _fitted_residuals(problem: Problem, i: int, force) -> np.ndarray:
+    """Log ``i``'s force residuals (N) at its fitted samples, a new array (one copy of the
+    channel at most: a long log's)."""
+    res = np.subtract(force, problem.logs[i].force)
+    fitted = problem.sample_weights[i] > 0
+    return res if fitted.all() else res[fitted]
+
+
 def _lag1(problem: Problem, per_log_pred) -> float:
     """Pooled lag-1 autocorrelation of the force residuals over the weighted samples."""
     num = den = 0.0
-    for i, (log, pred) in enumerate(zip(problem.logs, per_log_pred)):
-        res = pred["force"] - np.asarray(log.force)
-        res = res[problem.sample_weights[i] > 0]
-        res = res - res.mean()
+    for i, pred in enumerate(per_log_pred):
+        res = _fitted_residuals(problem, i, pred["force"])
+        res -= res.mean()
         num += float(res[1:] @ res[:-1])
         den += float(res @ res)
     return float(np.clip(num / den, -_LAG1_CAP, _LAG1_CAP)) if den > 0 else 0.0
