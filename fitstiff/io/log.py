@@ -196,8 +196,14 @@ class Rig:
 
 
 def _frozen(a: np.ndarray | None) -> np.ndarray | None:
+    """A read-only float64 copy of ``a``; an array that is one already (read-only, float64,
+    owning its data: what the loader hands over) is taken as it is, not copied (a long log's
+    channels are hundreds of MB)."""
     if a is None:
         return None
+    if (isinstance(a, np.ndarray) and a.dtype == np.float64 and not a.flags.writeable
+            and a.flags.owndata and a.flags.c_contiguous):
+        return a
     a = np.array(a, dtype=np.float64, copy=True)
     a.flags.writeable = False
     return a

@@ -70,7 +70,9 @@ def robust_var(d: np.ndarray) -> float:
     ``(1.4826 MAD)**2`` (0 for no values): the ``D_k`` that :func:`noise_floor` fits."""
     if d.size == 0:
         return 0.0
-    return float((_MAD * np.median(np.abs(d - np.median(d)))) ** 2)
+    deviation = d - np.median(d)
+    np.abs(deviation, out=deviation)          # in place: a long log's channel is one copy
+    return float((_MAD * np.median(deviation, overwrite_input=True)) ** 2)
 
 
 def ar1_shape(rho: float, k: np.ndarray) -> np.ndarray:
@@ -101,7 +103,8 @@ def noise_floor(values: np.ndarray, *, mask: np.ndarray | None = None) -> NoiseF
         return NoiseFloor(0.0, 0.0)
     d = np.empty(_LAGS.size)
     for j, k in enumerate(_LAGS):
-        second = f[2 * k:] - 2.0 * f[k:-k] + f[:-2 * k]
+        second = f[2 * k:] - 2.0 * f[k:-k]
+        second += f[:-2 * k]
         if mask is not None:          # (without one, no mask and no copy of a long log)
             second = second[keep[2 * k:] & keep[k:-k] & keep[:-2 * k]]
         d[j] = robust_var(second)

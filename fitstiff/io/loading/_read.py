@@ -214,6 +214,8 @@ def _load(path: Path, layout: Format, overrides: dict[str, object]) -> Log:
         "format": layout.source,
         "sidecar": None if sidecar is None else str(sidecar),
     }
+    for values in si.values():      # handed over: the log takes them without a copy
+        values.flags.writeable = False
     return Log(name=path.stem, displacement=si["displacement"], force=si["force"],
                time=si.get("time"), pressure_a=si.get("p_a"), pressure_b=si.get("p_b"),
                rig=rig, vented=vented, path=path, notes=tuple(notes), source=source)
