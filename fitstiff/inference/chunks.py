@@ -42,6 +42,7 @@ import numpy as np
 
 from fitstiff._jax import jax, jnp
 from fitstiff.inference import lm
+from fitstiff.inference.problem import with_nuisances
 from fitstiff.physics.drive import Drive
 
 __all__ = ["WINDOW", "Windows", "WindowSummary"]
@@ -81,7 +82,6 @@ class _LogData(NamedTuple):
     weight: np.ndarray
     pressure: tuple
     pressure_weight: tuple
-    reversal_noise: np.ndarray | None
 
 
 class WindowSummary(NamedTuple):
@@ -119,8 +119,7 @@ class Windows:
                 weights = tuple(None if w is None else np.asarray(w)[row, :n]
                                 for w in g.pressure_weight)
                 self.logs.append(_LogData(i, n, drive, np.asarray(g.force)[row, :n],
-                                          np.asarray(g.weight)[row, :n], pressures, weights,
-                                          None))
+                                          np.asarray(g.weight)[row, :n], pressures, weights))
                 t = np.asarray(drive.time)
                 if n > 1:
                     steps.append(float(np.min(np.diff(t))) if drive.has_time else 1.0)
@@ -157,10 +156,10 @@ class Windows:
         i = np.where(before, h - min(start, h), np.arange(idx.size))
         i = np.where(after, n - 1 - (start - h), i)
         j = np.where(after, max(n - 2, 0) - (start - h), i)
-        a = np.where(after, 2.0, 1.0) if n > 1 else np.ones(idx.size)
-        b = np.where(after, -1.0, 0.0) if n > 1 else np.zeros(idx.size)
-        held_i, held_j = np.clip(idx[i], 0, n - 1), np.clip(idx[j], 0, n - 1)
-        displacement = a * x[held_i] + b * x[held_j]
+        tie_a = np.where(after, 2.0, 1.0) if n > 1 else np.ones(idx.size)
+        tie_b = np.where(after, -1.0, 0.0) if n > 1 else np.zeros(idx.size)
+        displacement = (tie_a * x[np.clip(idx[i], 0, n - 1)]
+                        + tie_b * x[np.clip(idx[j], 0, n - 1)])
 
         def take(a):
             return None if a is None else np.asarray(a)[held]
@@ -186,7 +185,8 @@ class Windows:
             noise = np.where(before | after, 0.0, row[held])
         return _Window(drive, measured(log.force), weight(log.weight),
                        tuple(measured(p) for p in log.pressure),
-                       tuple(weight(w) for w in log.pressure_weight), noise, i, j, a, b)
+                       tuple(weight(w) for w in log.pressure_weight), noise, i, j, tie_a,
+                       tie_b)
 
     def _reversal_noise(self, log: _LogData) -> np.ndarray:
         for g, noise in zip(self.problem.groups, self.problem.reversal_noise()):
@@ -195,32 +195,25 @@ class Windows:
         raise AssertionError("every log is in a group")
 
     # -- one window ---------------------------------------------------------------------------
+    def _prediction(self, theta, dz, carry, win: _Window, log, first: bool):
+        """The window's prediction and the state after it (``dz`` added to the log's initial
+        friction state: the direction of its summary column)."""
+        model, nuisances = self.problem.unpack(theta)
+        if "friction_state0" in nuisances:
+            nuisances = {**nuisances, "friction_state0": nuisances["friction_state0"] + dz}
+        drive = with_nuisances(win.drive, nuisances, log)
+        return model.run_window(drive, None if first else carry, start=self.margin,
+                                length=self.window)
+
     def _residuals(self, theta, dz, carry, win: _Window, log, first: bool):
         """The window's whitened residuals, its predicted force and the state after it."""
-        model, nuisances = self.problem.unpack(theta)
-        drive = self._nuisances(win.drive, nuisances, log, dz)
-        pred, carry = model.run_window(drive, None if first else carry, start=self.margin,
-                                       length=self.window)
+        pred, carry = self._prediction(theta, dz, carry, win, log, first)
         parts = [(pred.force - win.force) * win.weight]
         for c, (measured, weight) in enumerate(zip(win.pressure, win.pressure_weight)):
             if measured is not None:
                 modelled = pred.pressure_a if c == 0 else pred.pressure_b
                 parts.append((modelled - measured) * weight)
         return jnp.concatenate(parts), pred.force, carry
-
-    @staticmethod
-    def _nuisances(drive: Drive, nuisances, log, dz) -> Drive:
-        """``drive`` with the nuisance values of log ``log`` (``dz`` added to its initial
-        friction state: the direction of its summary column)."""
-        if "offset" in nuisances:
-            drive = dataclasses.replace(drive, force_offset=nuisances["offset"][log])
-        if "friction_state0" in nuisances:
-            drive = dataclasses.replace(drive,
-                                        friction_state0=nuisances["friction_state0"][log] + dz)
-        if "closing_pressure" in nuisances:
-            p0 = drive.p_amb + nuisances["closing_pressure"][log]
-            drive = dataclasses.replace(drive, p_a0=p0, p_b0=p0)
-        return drive
 
     def _columns(self, theta, carry, carry_tangent, win, log, first):
         """The window's residuals ``r``, its Jacobian's rows ``J^T`` (one per tangent
@@ -245,12 +238,7 @@ class Windows:
                  jnp.all(jnp.isfinite(r)) & jnp.all(jnp.isfinite(jt))), carry_out, tan_out)
 
     def _predict_window(self, theta, carry, win, log, *, first):
-        problem = self.problem
-        model, nuisances = problem.unpack(theta)
-        drive = self._nuisances(win.drive, nuisances, log, 0.0)
-        pred, carry = model.run_window(drive, None if first else carry, start=self.margin,
-                                       length=self.window)
-        return pred, carry
+        return self._prediction(theta, 0.0, carry, win, log, first)
 
     def _cost_window(self, theta, carry, win, log, *, first):
         r, _, carry = self._residuals(theta, 0.0, carry, win, log, first)

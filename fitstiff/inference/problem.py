@@ -47,7 +47,7 @@ from fitstiff.segments.segmentation import Segmentation, segment
 from fitstiff.signal.noise import estimate_noise, marginal_scale, noise_floor
 
 __all__ = ["Problem", "compiled_batch", "ResidualSeries", "channel_noise", "CHANNELS",
-           "CHUNKED_ROWS"]
+           "CHUNKED_ROWS", "with_nuisances"]
 
 #: the observed channels of a log, in the order of the residual vector
 CHANNELS = ("force", "pressure_a", "pressure_b")
@@ -346,19 +346,10 @@ class Problem:
         return self._reversal_noise
 
     def _group_drive(self, group: Group, nuisances, displacement=None):
-        idx = jnp.asarray(group.index)
         drive = group.drive
         if displacement is not None:
             drive = drive.moved(displacement)
-        if "offset" in nuisances:
-            drive = eqx.tree_at(lambda d: d.force_offset, drive, nuisances["offset"][idx])
-        if "friction_state0" in nuisances:
-            drive = eqx.tree_at(lambda d: d.friction_state0, drive,
-                                nuisances["friction_state0"][idx])
-        if "closing_pressure" in nuisances:
-            p0 = drive.p_amb + nuisances["closing_pressure"][idx]
-            drive = eqx.tree_at(lambda d: (d.p_a0, d.p_b0), drive, (p0, p0))
-        return drive
+        return with_nuisances(drive, nuisances, jnp.asarray(group.index))
 
     def predictions(self, theta, displacements=None):
         """Per group: the vmap-ed :class:`~fitstiff.physics.model.Prediction` (leading log axis).
@@ -505,6 +496,21 @@ class Problem:
         for name, value in zip(("_groups", "drives", "_reversal_noise"), arrays):
             object.__setattr__(bound, name, value)
         return bound
+
+
+def with_nuisances(drive: Drive, nuisances: Mapping[str, jnp.ndarray], index) -> Drive:
+    """``drive`` with the nuisance values (:meth:`Problem.nuisances`) of the logs at
+    ``index`` (an array for a stack of drives, an integer for one): force offset, initial
+    friction state, closing pressure."""
+    if "offset" in nuisances:
+        drive = eqx.tree_at(lambda d: d.force_offset, drive, nuisances["offset"][index])
+    if "friction_state0" in nuisances:
+        drive = eqx.tree_at(lambda d: d.friction_state0, drive,
+                            nuisances["friction_state0"][index])
+    if "closing_pressure" in nuisances:
+        p0 = drive.p_amb + nuisances["closing_pressure"][index]
+        drive = eqx.tree_at(lambda d: (d.p_a0, d.p_b0), drive, (p0, p0))
+    return drive
 
 
 def _rows(logs: Sequence[Log]) -> int:
