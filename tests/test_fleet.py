@@ -219,6 +219,18 @@ def test_a_rerun_fits_only_new_or_changed_units(fleet, tmp_path):
     changed = (table2["cylinder"] == "cyl0003").to_numpy()
     pd.testing.assert_frame_equal(table2.loc[~changed, ESTIMATES], table.loc[~changed, ESTIMATES])
     assert table2.loc[changed, "breakaway_N"].item() != table.loc[changed, "breakaway_N"].item()
+    # the cache is pruned to this run's rows, in one file: cyl0003's old row is gone, and a
+    # third run over a fleet without cyl0005 fits nothing and keeps what it read
+    parts = list(cache.glob("chunk-*.parquet"))
+    assert len(parts) == 1
+    cached = pd.read_parquet(parts[0])
+    assert len(cached) == len(table) and cached["input_hash"].is_unique
+    shutil.rmtree(copy / "cyl0005")
+    third = []
+    table3 = fit_fleet(copy, workers=1, cache=cache, progress=lambda d, n: third.append(d))
+    assert third[0] == len(table3) == len(table) - 1
+    parts = list(cache.glob("chunk-*.parquet"))
+    assert len(parts) == 1 and len(pd.read_parquet(parts[0])) == len(table) - 1
 
 
 def test_batched_solves_match_one_at_a_time(fleet):

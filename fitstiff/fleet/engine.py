@@ -93,9 +93,11 @@ def _cached(cache: Path | None) -> dict[str, dict]:
     return rows
 
 
-def _store(cache: Path | None, rows: list[dict]) -> None:
+def _store(cache: Path | None, rows: list[dict]) -> Path | None:
+    """``rows`` written atomically as one chunk file of ``cache``, named by their input
+    hashes; its path."""
     if cache is None or not rows:
-        return
+        return None
     import hashlib
 
     name = hashlib.sha256("".join(sorted(r["input_hash"] for r in rows)).encode()).hexdigest()
@@ -105,6 +107,7 @@ def _store(cache: Path | None, rows: list[dict]) -> None:
     frame.to_parquet(tmp, index=False)
     write_atomic(path, tmp.read_bytes())
     tmp.unlink()
+    return path
 
 
 def _run_local(chunks, settings, done) -> None:
@@ -208,7 +211,27 @@ def fit_fleet(source: str | os.PathLike | Sequence[Unit], *, model: str = DEFAUL
         progress(finished, total)
     _run(_chunks(todo, chunk), settings, done, hashes=dict(zip(units, hashes)), workers=workers,
          scheduler=scheduler)
-    return _with_population(pd.DataFrame([rows[(u.cylinder, u.run)] for u in units]), q)
+    table = [rows[(u.cylinder, u.run)] for u in units]
+    _prune(cache_dir, table)
+    return _with_population(pd.DataFrame(table), q)
+
+
+def _prune(cache: Path | None, rows: list[dict]) -> None:
+    """After a finished run: the cache holds this run's rows only, in one chunk file. The rows
+    of units whose inputs changed or that left the fleet go (they would never be read
+    again, and every later run would read them), and the chunk files of the batches merge
+    into one. The merged file is written first and the others removed after, so an
+    interrupted pruning leaves every row it had."""
+    if cache is None or not rows:
+        return
+    parts = sorted(cache.glob("chunk-*.parquet"))
+    if len(parts) == 1 and set(pd.read_parquet(parts[0], columns=["input_hash"])
+                                ["input_hash"]) == {r["input_hash"] for r in rows}:
+        return
+    kept = _store(cache, rows)
+    for part in parts:
+        if part != kept:
+            part.unlink(missing_ok=True)
 
 
 def _units(source: str | os.PathLike | Sequence[Unit]) -> list[Unit]:
