@@ -144,3 +144,17 @@ def test_segment_velocity_in_blocks_is_the_same(monkeypatch):
     one = denoise.segment_velocity(x, t, reversals, noise=1e-7)
     monkeypatch.setattr(denoise, "_BLOCK", 333)
     np.testing.assert_array_equal(denoise.segment_velocity(x, t, reversals, noise=1e-7), one)
+
+
+def test_a_posterior_takes_a_chunked_fit(logs):
+    """Commands other than the fit take a chunked problem as it is (they evaluate its logs
+    whole, the arrays passed from the host): a short posterior from a chunked fit runs and
+    its samples sit at the fit's estimates."""
+    from fitstiff.inference.posterior.sampler import sample_posterior
+
+    fit = fit_problem(Problem(logs[:1], "chamber+dahl", chunked=True, denoise=False))
+    post = sample_posterior(fit, walkers=16, steps=300, check_every=100, progress=False,
+                            draws=50)
+    assert np.all(np.isfinite(post.samples)) and np.all(np.isfinite(post.log_prob))
+    median = np.median(post.samples.reshape(-1, post.samples.shape[-1]), axis=0)
+    np.testing.assert_allclose(median[:3], fit.values[:3], rtol=0.02)
