@@ -286,19 +286,18 @@ class Windows:
         return self._compiled[key]
 
     # -- sweeps -------------------------------------------------------------------------------
-    def _sweep(self, name: str, theta, *args, reversal_noise: bool = False, tangents=True):
+    def _sweep(self, name: str, theta, *, tangents: bool = True):
         """Run ``name`` over every window of every log in order, carrying the state (and its
         tangents); yields ``(log, k, outputs, carry_in, tangent_in)`` per window."""
         for log in self.logs:
             carry = tangent = None
             for k in range(self.count(log)):
-                win = self._window(log, k, reversal_noise=reversal_noise)
+                win = self._window(log, k)
                 fn = self._fn(name, k == 0)
                 if tangents:
-                    out, carry_out, tangent_out = fn(theta, carry, tangent, *args, win,
-                                                     log.index)
+                    out, carry_out, tangent_out = fn(theta, carry, tangent, win, log.index)
                 else:
-                    out, carry_out = fn(theta, carry, *args, win, log.index)
+                    out, carry_out = fn(theta, carry, win, log.index)
                     tangent_out = None
                 yield log, k, out, carry, tangent
                 carry, tangent = carry_out, tangent_out
