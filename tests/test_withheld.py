@@ -178,6 +178,23 @@ def test_scores_and_confusion_matrix_on_hand_made_results():
     assert counts.sum() == 9
 
 
+def test_screened_finds_the_stored_diagnoses_a_candidate_may_have_changed():
+    """benchmarks/withheld.py --rerun-screened: a dataset is run again when the candidate
+    was refitted, screened below the level, or may hide below a ranked list that ends below
+    it; not when it was screened weakly, or is absent below a list that ends above it."""
+    def rec(*rows):
+        return {"ranked": [{"effect": e, "log_p_value": math.log(p), "shrink": sh}
+                           for e, p, sh in rows]}
+
+    level = 0.01
+    assert wh.screened(rec(("a", 1e-9, 0.5), ("c", 1e-9, None)), "c", level=level)
+    assert wh.screened(rec(("c", 0.2, -0.1)), "c", level=level)          # refitted
+    assert not wh.screened(rec(("a", 1e-9, 0.5), ("c", 0.2, None)), "c", level=level)
+    assert wh.screened(rec(("a", 1e-9, 0.5), ("b", 1e-3, None)), "c", level=level)
+    assert not wh.screened(rec(("a", 1e-9, 0.5), ("b", 0.3, None)), "c", level=level)
+    assert wh.screened({"error": "boom"}, "c", level=level)
+
+
 def test_plot_confusion_draws_on_the_given_axes():
     import matplotlib
     matplotlib.use("Agg")

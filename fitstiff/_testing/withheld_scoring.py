@@ -152,6 +152,22 @@ def named(record: Mapping[str, object]) -> str:
     return record["accepted"][0] if record.get("accepted") else "none"
 
 
+def screened(record: Mapping[str, object], effect: str, *, level: float) -> bool:
+    """Whether the stored diagnosis of ``record`` may have refitted ``effect``: its ranked
+    candidates (the strongest few, each at its last screen) show it with ``p < level`` or
+    with a refit, or do not show it while the last one shown lies below ``level`` (the
+    effect may be hidden below them). The datasets a change to that candidate alone can
+    change are among these: a candidate that is never refitted leaves every decision as
+    it was. A stored error counts as screened (nothing is known of it)."""
+    if "error" in record:
+        return True
+    ranked = record.get("ranked", [])
+    row = next((r for r in ranked if r["effect"] == effect), None)
+    if row is not None:
+        return row["shrink"] is not None or row["log_p_value"] < math.log(level)
+    return bool(ranked) and ranked[-1]["log_p_value"] < math.log(level)
+
+
 def confusion(records: Iterable[Mapping[str, object]]) -> tuple[list[str], list[str],
                                                                  np.ndarray]:
     """Rows: the true effect of single-effect datasets, ``none`` for nulls and
