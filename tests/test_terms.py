@@ -467,34 +467,40 @@ def test_runs_of_a_hand_made_displacement():
 
 
 def test_a_signal_made_monotone_within_the_runs():
-    """Runs.monotone: every run moves its own way, a run that already does is kept, the
-    mean of the two envelopes keeps the signal's level, runs of sign 0 keep their values,
-    and the derivative is the gathered samples' (finite, the same as the envelopes')."""
-    from fitstiff.signal.monotone import find_runs
+    """directions finds find_runs' runs inside a traced function; monotone_in_runs makes
+    every run move its own way, keeps a run that already does, keeps the signal's level, leaves
+    a displacement that never moves as it is, and differentiates as the gathered samples (the
+    same as the envelopes' own derivative)."""
+    from fitstiff.signal.monotone import directions, find_runs, monotone_in_runs
 
     rng = np.random.default_rng(3)
-    x = np.concatenate([np.linspace(0, 1e-3, 400), np.linspace(1e-3, -5e-4, 600),
-                        np.linspace(-5e-4, 2e-4, 300)])
+    x = np.concatenate([np.zeros(7), np.linspace(0, 1e-3, 400), np.full(9, 1e-3),
+                        np.linspace(1e-3, -5e-4, 600), np.linspace(-5e-4, 2e-4, 300)])
     runs = find_runs(x)
-    assert np.asarray(runs.sign).tolist() == [1, -1, 1]
+    sign, index = (np.asarray(a) for a in jax.jit(directions)(jnp.asarray(x)))
+    np.testing.assert_array_equal(index, np.asarray(runs.index))
+    np.testing.assert_array_equal(sign, np.asarray(runs.sign)[np.asarray(runs.index)])
     noise = 3e-6 * rng.standard_normal(x.size)
     y = jnp.asarray(x + noise)
-    out = np.asarray(runs.monotone(y))
-    index = np.asarray(runs.index)
-    s = np.asarray(runs.sign)[index]
+    out = np.asarray(monotone_in_runs(y, jnp.asarray(sign), jnp.asarray(index)))
     within = index[1:] == index[:-1]            # a run's first step leaves the last one's end
-    assert np.all((np.diff(out) * s[1:])[within] >= -1e-15)
-    assert np.count_nonzero(np.diff(np.asarray(y)) * s[1:] < 0) > 300     # the raw one reverses
+    assert np.all((np.diff(out) * sign[1:])[within] >= 0)
+    assert np.count_nonzero(np.diff(np.asarray(y)) * sign[1:] < 0) > 300  # the raw one reverses
     assert abs(np.mean(out - x)) < 1e-6 and np.sqrt(np.mean((out - x) ** 2)) < 4e-6
-    np.testing.assert_array_equal(np.asarray(runs.monotone(jnp.asarray(x))), x)
-    still = find_runs(np.zeros(5))
-    np.testing.assert_array_equal(np.asarray(still.monotone(jnp.asarray(noise[:5]))), noise[:5])
-    grad = jax.grad(lambda c: jnp.sum(runs.monotone(y * c) ** 2))(1.0)
-    envelopes = jax.grad(lambda c: jnp.sum((0.5 * (
-        jax.lax.cummax(s * y * c + 10.0 * runs.index)
-        + jax.lax.cummin(s * y * c + 10.0 * runs.index, reverse=True))
-        - 10.0 * runs.index) ** 2))(1.0)
-    assert np.isfinite(float(grad)) and float(grad) == pytest.approx(float(envelopes), rel=1e-9)
+    np.testing.assert_array_equal(np.asarray(monotone_in_runs(jnp.asarray(x), *directions(x))), x)
+    still = jnp.zeros(5)
+    np.testing.assert_array_equal(np.asarray(monotone_in_runs(still + noise[:5],
+                                                              *directions(still))), noise[:5])
+    grad = jax.grad(lambda c: jnp.sum(monotone_in_runs(y * c, sign, index) ** 2))(1.0)
+    lift = 10.0 * index
+
+    def envelopes(c):
+        z = sign * y * c + lift
+        return jnp.sum((sign * (0.5 * (jax.lax.cummax(z) + jax.lax.cummin(z, reverse=True))
+                                - lift)) ** 2)
+
+    assert np.isfinite(float(grad))
+    assert float(grad) == pytest.approx(float(jax.grad(envelopes)(1.0)), rel=1e-9)
 
 
 def test_measured_force_compliance_keeps_the_pistons_runs():

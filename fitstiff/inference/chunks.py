@@ -44,7 +44,6 @@ from fitstiff._jax import jax, jnp
 from fitstiff.inference import lm
 from fitstiff.inference.problem import with_nuisances
 from fitstiff.physics.drive import Drive
-from fitstiff.signal.monotone import find_runs, pad_runs
 
 __all__ = ["WINDOW", "Windows", "WindowSummary"]
 
@@ -135,9 +134,6 @@ class Windows:
         self._theta_basis = jnp.asarray(e[:, :self.size])
         self._state_basis = jnp.asarray(e[:, self.size:].sum(axis=1))
         self._compiled = {}
-        #: an input term reads the displacement's monotone runs: each window finds them in
-        #: its own samples (margins included), as many as it has samples (one compiled shape)
-        self.runs = any(t.needs_runs for t in problem.model.terms)
 
     # -- windows ----------------------------------------------------------------------------
     def count(self, log: _LogData) -> int:
@@ -172,8 +168,7 @@ class Windows:
             d, time=time, displacement=displacement, pressure_a=take(d.pressure_a),
             pressure_b=take(d.pressure_b), still=take(d.still), velocity=take(d.velocity),
             acceleration=take(d.acceleration), measured_force=take(d.measured_force),
-            runs=self._runs(displacement), log_volume_span=None, log_volume_ratios=None,
-            name="")
+            runs=None, log_volume_span=None, log_volume_ratios=None, name="")
         inner = np.arange(start, start + c)
         inside = inner < n
         inner = np.minimum(inner, n - 1)
@@ -192,19 +187,6 @@ class Windows:
                        tuple(measured(p) for p in log.pressure),
                        tuple(weight(w) for w in log.pressure_weight), noise, i, j, tie_a,
                        tie_b)
-
-    def _runs(self, displacement: np.ndarray):
-        """The window's monotone runs where an input term reads them, padded to one run per
-        sample (None: not read, or a displacement too noisy to have runs). A run that
-        crosses the window's edge is the window's part of it, so what an input term makes
-        of the runs can differ from the whole log's within the run at the edge."""
-        if not self.runs:
-            return None
-        found = find_runs(displacement)
-        if found is None:
-            return None
-        n = displacement.shape[0]
-        return jax.tree.map(np.asarray, pad_runs(found, n, n))
 
     def _reversal_noise(self, log: _LogData) -> np.ndarray:
         for g, noise in zip(self.problem.groups, self.problem.reversal_noise()):

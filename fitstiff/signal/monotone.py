@@ -22,7 +22,7 @@ import numpy as np
 
 from fitstiff._jax import jax, jnp
 
-__all__ = ["Runs", "count_runs", "find_runs", "pad_runs"]
+__all__ = ["Runs", "count_runs", "directions", "find_runs", "monotone_in_runs", "pad_runs"]
 
 #: the closed form pays when a log has at most this fraction of its samples as runs (it adds
 #: a gather and a vectorised exp per sample; one loop iteration per run remains)
@@ -53,33 +53,49 @@ class Runs(NamedTuple):
         """Whether the steps ``dx`` (``(n,)``) go nowhere against their run's direction."""
         return jnp.all(self.sign[self.index] * dx >= 0.0)
 
-    def monotone(self, y):
-        """``y`` (``(n,)``, traced) made to move one way within each run, the run's way: the
-        mean of its upper envelope from the run's start (running maximum along the run's
-        direction) and its lower envelope from the run's end (running minimum from the
-        end). Where ``y`` already moves one way it is returned as it is; a run of sign 0
-        keeps its values.
 
-        For a signal that must share the runs of the displacement but carries noise of its
-        own (the piston position ``x - C F`` of ``rig_compliance:measured``, with the logged
-        force's noise): a stepped friction law reads every step against the run's direction
-        as a reversal, and noise-made reversals ratchet its state. The two envelopes lead and
-        lag by about the same amount, so their mean keeps the level of ``y``.
-        """
-        s = self.sign[self.index].astype(y.dtype)
-        k = self.index.astype(y.dtype)
-        # runs stacked into one increasing sequence: each run starts above every value of
-        # the runs before it, so the running extremes restart at every run
-        w = s * y
-        z = jax.lax.stop_gradient(w + 2.0 * (jnp.max(jnp.abs(w)) + 1.0) * k)
-        # the sample each envelope takes its value from (found without derivatives: those
-        # of the running extremes compile to a large scan, 3 s for a forward-mode Jacobian
-        # of 5 000 samples), then gathered from the run's own samples
-        i = jnp.arange(z.shape[0])
-        up = jax.lax.cummax(jnp.where(z >= jax.lax.cummax(z), i, 0))
-        down = jax.lax.cummin(jnp.where(z <= jax.lax.cummin(z, reverse=True), i,
-                                        z.shape[0] - 1), reverse=True)
-        return jnp.where(s != 0, s * 0.5 * (w[up] + w[down]), y)
+def directions(x):
+    """The monotone runs of ``x`` (``(n,)``, traced; no derivative flows through them) as
+    per-sample arrays: the direction of each sample's run (+1, -1; 0 where ``x`` never moves)
+    and the run's number. The runs of :func:`find_runs`, found inside a traced function: a
+    run starts at a moving sample whose direction differs from the previous moving one, and
+    the samples before the first step belong to the first run."""
+    x = jax.lax.stop_gradient(x)
+    n = x.shape[0]
+    step = jnp.sign(jnp.diff(x, prepend=x[:1]))
+    i = jnp.arange(n)
+    last = jax.lax.cummax(jnp.where(step != 0, i, -1))      # the last moving sample so far
+    sign = jnp.where(last >= 0, step[jnp.maximum(last, 0)], step[jnp.argmax(step != 0)])
+    before = jnp.concatenate([sign[:1], sign[:-1]])
+    return sign, jnp.cumsum((step != 0) & (step != before))
+
+
+def monotone_in_runs(y, sign, index):
+    """``y`` (``(n,)``, traced) made to move one way within each run (``sign``, ``index``
+    per sample, :func:`directions`): the mean of its upper envelope from the run's start
+    (running maximum along the run's direction) and its lower envelope from the run's end
+    (running minimum from the end). Where ``y`` already moves one way within a run it is
+    returned as it is; samples of sign 0 keep their values.
+
+    For a signal that must keep the runs of the displacement but carries noise of its own
+    (the piston position ``x - C F`` of ``rig_compliance:measured``, with the logged force's
+    noise): a stepped friction law reads every step against the run's direction as a
+    reversal, and noise-made reversals ratchet its state. The two envelopes lead and lag by
+    about the same amount, so their mean keeps the level of ``y``.
+    """
+    s = sign.astype(y.dtype)
+    w = s * y
+    # runs stacked into one increasing sequence (each run starts above every value of the
+    # runs before it, so the running extremes restart at every run); the sample each
+    # envelope takes its value from is found without derivatives (those of the running
+    # extremes compile to a large scan: 3 s for a forward-mode Jacobian of 5 000 samples),
+    # then gathered from the run's own samples
+    z = jax.lax.stop_gradient(w + 2.0 * (jnp.max(jnp.abs(w)) + 1.0) * index.astype(y.dtype))
+    i = jnp.arange(z.shape[0])
+    up = jax.lax.cummax(jnp.where(z >= jax.lax.cummax(z), i, 0))
+    down = jax.lax.cummin(jnp.where(z <= jax.lax.cummin(z, reverse=True), i,
+                                    z.shape[0] - 1), reverse=True)
+    return jnp.where(s != 0, s * 0.5 * (w[up] + w[down]), y)
 
 
 def count_runs(x) -> int:

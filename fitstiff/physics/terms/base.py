@@ -128,10 +128,6 @@ class Term(eqx.Module):
     #: the term takes the logged force as an input (the problem smooths its noise out first:
     #: :func:`fitstiff.segments.denoise.smooth_force`)
     needs_measured_force: ClassVar[bool] = False
-    #: the term reads the monotone runs of the drive's displacement
-    #: (:attr:`~fitstiff.physics.drive.Drive.runs`; a log run in windows finds them in each
-    #: window, :mod:`fitstiff.inference.chunks`)
-    needs_runs: ClassVar[bool] = False
     #: roles that modifiers act on: how messages name the role ("'stribeck' modifies ...")
     described: ClassVar[str] = ""
 

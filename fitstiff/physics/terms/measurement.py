@@ -14,6 +14,7 @@ import numpy as np
 from fitstiff._jax import jnp
 from fitstiff.physics.params import Param
 from fitstiff.physics.terms.base import InputTerm, SeriesTerm, Term
+from fitstiff.signal.monotone import directions, monotone_in_runs
 
 __all__ = ["MeasuredForceCompliance", "RigCompliance", "TimeDelay"]
 
@@ -71,14 +72,13 @@ class MeasuredForceCompliance(_Compliance, InputTerm):
     ``x_piston = x_sensor - compliance * F_model`` every step. Equal up to the force's
     remaining error times the compliance; no Newton iteration in the scan and no coupling of
     every term to the piston motion, so the rest of the model keeps its all-samples
-    evaluation. The piston position is kept moving one way within each of the drive's
-    monotone runs (:meth:`~fitstiff.signal.monotone.Runs.monotone`), as the series form's
-    piston does; without runs (a displacement not denoised) it is taken as it is. The
+    evaluation. The piston position is kept moving one way within each monotone run of the
+    displacement the term is given (:func:`~fitstiff.signal.monotone.monotone_in_runs`), as
+    the series form's piston does. The
     diagnosis screens and refits the effect this way; the simulator uses the series form.
     """
 
     needs_measured_force = True
-    needs_runs = True
 
     @property
     def token(self) -> str:
@@ -87,12 +87,13 @@ class MeasuredForceCompliance(_Compliance, InputTerm):
     def transform_input(self, drive, x):
         if drive.measured_force is None:
             return x
-        piston = x - self.compliance * drive.measured_force
-        # the piston reverses where the sensor does (it moves dx / (1 + C k) with the
-        # stiffness k >= 0 it pushes), so it keeps the drive's monotone runs; the logged
-        # force's noise would make reversals of its own, and a stepped friction law ratchets
-        # its state down on every one of them (withheld set single/rig_compliance/1, truth
-        # C 9.5e-3 mm/N, seal 55.6 N/mm, force noise 0.11 N AR(1) 0.47: RMS at the true
-        # parameters 3.16 N with the raw force, 0.61 N smoothed, 0.15 N with the noise-free
-        # force; the fit found C 8.1e-3 at 0.45 N, with the runs kept 9.8e-3 at 0.16 N)
-        return piston if drive.runs is None else drive.runs.monotone(piston)
+        # the piston reverses where the displacement it is given does (it moves
+        # dx / (1 + C k) with the stiffness k >= 0 it pushes), so it keeps that
+        # displacement's monotone runs; the logged force's noise would make reversals of its
+        # own, and a stepped friction law ratchets its state down on every one of them
+        # (withheld set single/rig_compliance/1, truth C 9.5e-3 mm/N, seal 55.6 N/mm, force
+        # noise 0.11 N AR(1) 0.47: RMS at the true parameters 3.16 N with the raw force,
+        # 0.61 N smoothed, 0.15 N with the noise-free force; the fit found C 8.1e-3 at
+        # 0.45 N, with the runs kept 9.8e-3 at 0.16 N). The runs are those of ``x`` as it
+        # comes (after a time delay, say), so at C = 0 the term leaves it exactly as it is.
+        return monotone_in_runs(x - self.compliance * drive.measured_force, *directions(x))
