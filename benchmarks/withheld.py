@@ -140,9 +140,9 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--json", type=Path, default=JSON_PATH)
     parser.add_argument("--rerun-screened", default=None, metavar="EFFECT",
                         help="run again the stored datasets whose diagnosis may have refitted "
-                             "EFFECT (screened at p < 0.01, refitted, or hidden below the "
-                             "ranked ones): after a change to that candidate alone, the "
-                             "others' stored records stand")
+                             "EFFECT (anything accepted; else screened at p < 0.01, refitted, "
+                             "or hidden below the ranked ones): after a change to that "
+                             "candidate alone, the others' stored records stand")
     parser.add_argument("--no-figure", action="store_true")
     parser.add_argument("--residuals", type=Path, default=None, metavar="DIR",
                         help="keep each dataset's held-out residuals in DIR (one .npz each)")

@@ -181,9 +181,12 @@ def test_scores_and_confusion_matrix_on_hand_made_results():
 def test_screened_finds_the_stored_diagnoses_a_candidate_may_have_changed():
     """benchmarks/withheld.py --rerun-screened: a dataset is run again when the candidate
     was refitted, screened below the level, or may hide below a ranked list that ends below
-    it; not when it was screened weakly, or is absent below a list that ends above it."""
-    def rec(*rows):
-        return {"ranked": [{"effect": e, "log_p_value": math.log(p), "shrink": sh}
+    it, and always when anything was accepted (the record keeps the last round's screens);
+    not when, in a single round, it was screened weakly or is absent below a list that ends
+    above the level."""
+    def rec(*rows, accepted=()):
+        return {"accepted": list(accepted),
+                "ranked": [{"effect": e, "log_p_value": math.log(p), "shrink": sh}
                            for e, p, sh in rows]}
 
     level = 0.01
@@ -193,6 +196,8 @@ def test_screened_finds_the_stored_diagnoses_a_candidate_may_have_changed():
     assert wh.screened(rec(("a", 1e-9, 0.5), ("b", 1e-3, None)), "c", level=level)
     assert not wh.screened(rec(("a", 1e-9, 0.5), ("b", 0.3, None)), "c", level=level)
     assert wh.screened({"error": "boom"}, "c", level=level)
+    assert wh.screened(rec(("a", 1e-9, 0.5), ("c", 0.9, None), accepted=["a"]), "c",
+                       level=level)
 
 
 def test_plot_confusion_draws_on_the_given_axes():

@@ -153,13 +153,15 @@ def named(record: Mapping[str, object]) -> str:
 
 
 def screened(record: Mapping[str, object], effect: str, *, level: float) -> bool:
-    """Whether the stored diagnosis of ``record`` may have refitted ``effect``: its ranked
-    candidates (the strongest few, each at its last screen) show it with ``p < level`` or
-    with a refit, or do not show it while the last one shown lies below ``level`` (the
-    effect may be hidden below them). The datasets a change to that candidate alone can
-    change are among these: a candidate that is never refitted leaves every decision as
-    it was. A stored error counts as screened (nothing is known of it)."""
-    if "error" in record:
+    """Whether the stored diagnosis of ``record`` may have refitted ``effect``. A record
+    keeps each candidate's last screen only, so where anything was accepted an earlier
+    round may have refitted it unseen: such a record always counts. Otherwise (one round)
+    its ranked candidates (the strongest few) show the effect with ``p < level`` or with a
+    refit, or do not show it while the last one shown lies below ``level`` (the effect may
+    be hidden below them). The datasets a change to that candidate alone can change are
+    among these: a candidate that is never refitted leaves every decision as it was. A
+    stored error counts too (nothing is known of it)."""
+    if "error" in record or record.get("accepted"):
         return True
     ranked = record.get("ranked", [])
     row = next((r for r in ranked if r["effect"] == effect), None)
