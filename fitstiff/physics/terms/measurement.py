@@ -74,8 +74,8 @@ class MeasuredForceCompliance(_Compliance, InputTerm):
     every term to the piston motion, so the rest of the model keeps its all-samples
     evaluation. The piston position is kept moving one way within each monotone run of the
     displacement the term is given (:func:`~fitstiff.signal.monotone.monotone_in_runs`), as
-    the series form's piston does. The
-    diagnosis screens and refits the effect this way; the simulator uses the series form.
+    the series form's piston does. The diagnosis screens and refits the effect this way; the
+    simulator uses the series form.
     """
 
     needs_measured_force = True
