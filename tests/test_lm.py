@@ -77,6 +77,25 @@ def test_a_walk_towards_a_transform_bound_ends_converged(normal):
 
 
 @FORMS
+def test_a_walk_towards_a_transform_bound_is_scaled_by_the_column_at_the_point(normal):
+    """Started at k = exp(3), the stiffness whose best value is 0 reaches it in a few steps:
+    the step's scale is its column at the point, which shrinks with k (down to a thousandth
+    of its largest). Scaled by the running maximum of the column norms (Moré, MINPACK) the
+    damping of k grew as k fell and the walk took 44 steps."""
+    x = np.linspace(-1.0, 1.0, 50)
+    y = 0.3 - 0.1 * x + 0.01 * np.random.default_rng(1).normal(size=x.size)
+
+    def fn(z):
+        return jnp.exp(z[0]) * x + z[1] - y
+
+    out = levenberg_marquardt(fn, jnp.array([3.0, 0.0]), max_steps=200, normal=normal)
+    assert int(out.status) == CONVERGED and int(out.steps) <= 12
+    assert float(jnp.exp(out.value[0])) < 1e-6
+    best = np.sum((np.mean(y) - y) ** 2)                 # k = 0, intercept the mean
+    assert float(out.cost) <= best * (1 + 1e-5)
+
+
+@FORMS
 def test_a_padding_entry_with_a_zero_column_stays_put(normal):
     out = levenberg_marquardt(lambda z: decay(z[:3]), jnp.array([1.0, -0.5, 0.0, 7.0]),
                               normal=normal)

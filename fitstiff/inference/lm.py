@@ -8,10 +8,10 @@ than once per step (measured: about 3.5 Jacobians per step on the diagnosis benc
 loop evaluates only the residuals at a trial point and builds the Jacobian once a trial is
 accepted, which is what pays when a step costs a scan.
 
-The algorithm is the classic one (Moré 1978 scaling, Nielsen 1999 damping update):
+The algorithm is the classic one (Marquardt 1963 scaling, Nielsen 1999 damping update):
 
 - at an accepted point ``z``: residuals ``r``, Jacobian ``J`` (one ``jacfwd``), thin QR
-  ``J = QR``, column scales ``D`` (running maximum of the column norms of ``J``);
+  ``J = QR``, column scales ``D`` (the column norms of ``J`` at ``z``);
 - a trial step solves ``min |J d + r|^2 + lam |D d|^2`` as the small stacked least squares
   ``[R; sqrt(lam) D] d = [-Q^T r; 0]``;
 - the gain ratio ``rho`` (actual over predicted decrease) accepts the step when positive and
@@ -23,7 +23,17 @@ The algorithm is the classic one (Moré 1978 scaling, Nielsen 1999 damping updat
   ``ftol`` test: a parameter walking towards a bound of the transform layer, e.g. a stiffness
   towards 0 through a log transform, moves without end but changes nothing), or
   when the gradient vanishes (every column of ``J`` orthogonal to ``r`` to 1e-12, or to 1e-6
-  once no step decreases the cost any more).
+  once no step decreases the cost any more, measured against the running maxima of the
+  column norms).
+
+The scales are the column norms at the point, not their running maxima (Moré 1978, as
+MINPACK). A parameter walking towards a bound of the transform layer (an element stiffness
+``k = exp(z)`` whose best value is 0) has a column that shrinks with ``k``; against the
+largest norm it ever had, its damping grows as the column shrinks and every step moves
+``z`` by about the same small amount. On a Maxwell-slip refit of the diagnosis (real-size
+speed benchmark, second round) that walk took 27 steps from ``k = 4.2`` to ``0.03`` N/mm;
+scaled by the column at the point, 9 steps to the same cost (``benchmarks/diagnosis_speed.py
+--size real``: cold 114.8 -> 83.8 s, refits 66.6 -> 40.1 s; ``docs/diagnosis_heldout.md``).
 
 With ``normal=True`` the state keeps the Gram matrix ``J^T J`` instead of ``Q`` and ``R``
 and a trial step solves the damped normal equations ``(J^T J + lam D^2) d = -J^T r``
@@ -63,6 +73,8 @@ _LAM0 = 1e-3
 _LAM_MAX = 1e16
 _GTOL = 1e-12          # largest |cos(residual, column)| at which the gradient has vanished
 _STALL_GTOL = 1e-6     # the same, accepted when no step decreases the cost any more
+#: least column scale of a step, as a share of the column's running maximum norm
+_SCALE_FLOOR = 1e-3
 
 
 class LMResult(NamedTuple):
@@ -80,7 +92,8 @@ class _State(NamedTuple):
     q: jax.Array            # thin Q of J (normal form: empty)
     rr: jax.Array           # R of J (normal form: J^T J)
     g: jax.Array            # J^T r
-    d: jax.Array            # column scales
+    d: jax.Array            # running maxima of the column norms (the stall test)
+    norms: jax.Array        # the column norms at the point (the step's scales)
     lam: jax.Array
     nu: jax.Array
     steps: jax.Array
@@ -98,10 +111,11 @@ def _cosine(g, norms, r_norm):
     return jnp.max(jnp.where(denom > 0, jnp.abs(g) / jnp.where(denom > 0, denom, 1.0), 0.0))
 
 
-def _scales(d):
-    """The column scales of a step: the running maxima ``d``, floored."""
+def _scales(norms, d):
+    """The column scales of a step: the column norms at the point, at least
+    :data:`_SCALE_FLOOR` of their running maxima ``d`` (and 1e-12 of the largest)."""
     floor = 1e-12 * jnp.maximum(jnp.max(d), 1e-300)
-    return jnp.maximum(d, floor)
+    return jnp.maximum(jnp.maximum(norms, _SCALE_FLOOR * d), floor)
 
 
 def _normal_step(gram, g, lam, d):
@@ -203,7 +217,7 @@ def levenberg_marquardt(fn: Callable[[jax.Array], jax.Array], z0: jax.Array, *,
     finite = jnp.all(jnp.isfinite(r0)) & jac_finite
     status0 = jnp.where(~finite, NONFINITE, jnp.where(
         _cosine(g0, d0, jnp.linalg.norm(r0)) <= _GTOL, CONVERGED, -1))
-    init = _State(z0, r0, q0, rr0, g0, d0, jnp.asarray(_LAM0), jnp.asarray(2.0),
+    init = _State(z0, r0, q0, rr0, g0, d0, d0, jnp.asarray(_LAM0), jnp.asarray(2.0),
                   jnp.asarray(0), status0)
     n = z0.size
 
@@ -218,7 +232,7 @@ def levenberg_marquardt(fn: Callable[[jax.Array], jax.Array], z0: jax.Array, *,
         return step, s.r @ s.r - (s.r + jd) @ (s.r + jd)
 
     def body(s: _State) -> _State:
-        step, predicted = trial_step(s, _scales(s.d))
+        step, predicted = trial_step(s, _scales(s.norms, s.d))
         z_new = s.z + step
         r_new = fn(z_new)
         cost = s.r @ s.r
@@ -229,7 +243,7 @@ def levenberg_marquardt(fn: Callable[[jax.Array], jax.Array], z0: jax.Array, *,
             r, q, rr, g, norms, _ = _linearise(fn, z_new, normal)
             done = _done(step, z_new, cost, cost_new, predicted, g, norms,
                          jnp.linalg.norm(r), rtol, atol)
-            return _State(z_new, r, q, rr, g, jnp.maximum(s.d, norms),
+            return _State(z_new, r, q, rr, g, jnp.maximum(s.d, norms), norms,
                           _damped(s.lam, rho), jnp.asarray(2.0), s.steps + 1,
                           jnp.where(done, CONVERGED, -1))
 
@@ -277,7 +291,7 @@ def levenberg_marquardt_reduced(linearise: Callable[[jax.Array], Linearisation],
         else -1
     d, lam, nu, steps = lin.norms, _LAM0, 2.0, 0
     while status < 0:
-        step, predicted = _normal_step(lin.gram, lin.gradient, lam, _scales(d))
+        step, predicted = _normal_step(lin.gram, lin.gradient, lam, _scales(lin.norms, d))
         z_new = z + step
         cost_new = cost(z_new)
         rho, ok = _gain(lin.cost, cost_new, predicted)
