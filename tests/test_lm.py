@@ -79,7 +79,7 @@ def test_a_walk_towards_a_transform_bound_ends_converged(normal):
 @FORMS
 def test_a_walk_towards_a_transform_bound_is_scaled_by_the_column_at_the_point(normal):
     """Started at k = exp(3), the stiffness whose best value is 0 reaches it in a few steps:
-    the step's scale is its column at the point, which shrinks with k (down to a thousandth
+    the step's scale is its column at the point, which shrinks with k (down to a hundredth
     of its largest). Scaled by the running maximum of the column norms (Moré, MINPACK) the
     damping of k grew as k fell and the walk took 44 steps."""
     x = np.linspace(-1.0, 1.0, 50)
