@@ -11,7 +11,9 @@ Cold means a fresh process and an empty compilation cache. Reported: the wall ti
 ``diagnose`` split as ``Diagnosis.timing_s`` splits it (set-up, baseline fit, held-out folds,
 screens, refits, the rest), the time JAX spent tracing and compiling (summed from JAX's own
 compile events, so it overlaps the phases it happened in), and a second identical call in the
-same process, warm (the persistent compilation cache serves its compilations).
+same process, warm (the persistent compilation cache serves its compilations). With
+``--solves``, every least-squares solve of the diagnosis is also timed and its trial steps
+counted, grouped by the candidates it frees (where the refits' time goes).
 
     python benchmarks/diagnosis_speed.py --size real --json benchmarks/results/diagnosis_speed_real.json
 """
@@ -59,6 +61,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--size", choices=sorted(SIZES), default="small")
     parser.add_argument("--json", type=Path)
+    parser.add_argument("--solves", action="store_true",
+                        help="time every solve and count its steps, by the candidates it frees")
     args = parser.parse_args()
     # cold: no persistent compilation cache for the first call
     os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", tempfile.mkdtemp())
@@ -73,6 +77,7 @@ def main() -> None:
             compiling[event] += duration
 
     jax.monitoring.register_event_duration_secs_listener(listen)
+    solves = _count_solves() if args.solves else None
     logs = make_logs(SIZES[args.size])
     runs = []
     for label in ("cold", "second"):
@@ -84,6 +89,12 @@ def main() -> None:
         runs.append({"run": label, "wall_s": wall, "timing_s": dict(d.timing_s),
                      "compile_s": compile_s, "compile_total_s": sum(compiling.values()),
                      "accepted": list(d.accepted)})
+        if solves is not None:
+            runs[-1]["solves"] = sorted(solves.values(), key=lambda v: -v["seconds"])
+            for v in runs[-1]["solves"]:
+                print(f"  {v['frees'] or '(current model)':40s} {v['solves']:3d} solves "
+                      f"{v['steps']:4d} steps {v['seconds']:6.1f} s", flush=True)
+            solves.clear()
         print(f"{label}: {wall:.1f} s {d.timing_s} compile {compile_s} "
               f"accepted {d.accepted}", flush=True)
     result = {"size": args.size, "logs": len(logs), "samples": [len(log) for log in logs],
@@ -93,6 +104,33 @@ def main() -> None:
     print(json.dumps(result, indent=1))
     if args.json:
         args.json.write_text(json.dumps(result, indent=1) + "\n")
+
+
+def _count_solves() -> dict:
+    """Wrap :meth:`SuperProblem.solve` to time each solve and count its trial steps, keyed
+    by the candidates it frees beyond the baseline (seconds are summed over the two fold
+    threads, so they can exceed the wall time)."""
+    import numpy as np
+
+    from fitstiff.diagnosis import supermodel
+
+    found: dict[str, dict] = {}
+    solve = supermodel.SuperProblem.solve
+
+    def timed(self, theta0, hold, free_model, free_nuisance, weights, **options):
+        start = time.perf_counter()
+        out = solve(self, theta0, hold, free_model, free_nuisance, weights, **options)
+        frees = ",".join(sorted({self.owners[k].term for k in np.flatnonzero(free_model)}
+                                - set(self.baseline_terms)))
+        entry = found.setdefault(frees, {"frees": frees, "solves": 0, "steps": 0,
+                                         "seconds": 0.0})
+        entry["solves"] += 1
+        entry["steps"] += out[2]
+        entry["seconds"] += time.perf_counter() - start
+        return out
+
+    supermodel.SuperProblem.solve = timed
+    return found
 
 
 if __name__ == "__main__":
