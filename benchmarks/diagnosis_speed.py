@@ -110,11 +110,14 @@ def _count_solves() -> dict:
     """Wrap :meth:`SuperProblem.solve` to time each solve and count its trial steps, keyed
     by the candidates it frees beyond the baseline (seconds are summed over the two fold
     threads, so they can exceed the wall time)."""
+    import threading
+
     import numpy as np
 
     from fitstiff.diagnosis import supermodel
 
     found: dict[str, dict] = {}
+    lock = threading.Lock()          # the held-out folds solve from two threads
     solve = supermodel.SuperProblem.solve
 
     def timed(self, theta0, hold, free_model, free_nuisance, weights, **options):
@@ -122,11 +125,12 @@ def _count_solves() -> dict:
         out = solve(self, theta0, hold, free_model, free_nuisance, weights, **options)
         frees = ",".join(sorted({self.owners[k].term for k in np.flatnonzero(free_model)}
                                 - set(self.baseline_terms)))
-        entry = found.setdefault(frees, {"frees": frees, "solves": 0, "steps": 0,
-                                         "seconds": 0.0})
-        entry["solves"] += 1
-        entry["steps"] += out[2]
-        entry["seconds"] += time.perf_counter() - start
+        with lock:
+            entry = found.setdefault(frees, {"frees": frees, "solves": 0, "steps": 0,
+                                             "seconds": 0.0})
+            entry["solves"] += 1
+            entry["steps"] += out[2]
+            entry["seconds"] += time.perf_counter() - start
         return out
 
     supermodel.SuperProblem.solve = timed
