@@ -132,8 +132,11 @@ def turning_points(x: np.ndarray, reversals: np.ndarray, *, noise: float | None 
     the apex (by the mean speed of the two legs) are fitted by
     ``a + b u + c u^2 + d |u|``, ``u = i - i0``, a kink ``d`` (a triangle's sharp turn) on a
     smooth curve (a sine's round one), with ``i0`` on a quarter-sample grid; the estimate is
-    the fitted curve's extremum and the sample nearest to it. Reversals too close to each
-    other or to the ends for a window keep the raw extreme sample and the noise as error.
+    the fitted curve's extremum and the sample nearest to it. A window the curve does not
+    describe (residual RMS above ``_TP_FIT`` marginal noise levels: flat, ramp and flat
+    around a turn placed in a hold after a stroke) is halved until it does. Reversals too
+    close to each other or to the ends for a window keep the raw extreme sample and the
+    noise as error.
 
     ``noise`` is the white-equivalent level (:func:`~fitstiff.signal.noise.estimate_noise`)
     and ``rho`` the lag-1 correlation of the noise: the errors are the fit's under AR(1)
