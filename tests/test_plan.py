@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from conftest import CHROMIUM, check_renders_in_chromium
+from conftest import CHROMIUM, REPO, check_renders_in_chromium
 from fitstiff.diagnosis.result import Candidate, Diagnosis
 from fitstiff.errors import InputError
 from fitstiff.io.log import Log, Rig
@@ -341,3 +341,31 @@ def test_a_rival_fitted_once_answers_to_the_name_it_is_asked_for(pause_free):
     again = rivals.fitted("the final model", rivals.spec(["viscous"], drop=["stribeck"]))
     assert a1.name == "viscous" and again.name == "the final model"
     assert again.model is a1.model                     # one fit, two names
+
+
+def test_diagnose_without_the_rigs_limits_writes_its_diagnosis_and_says_how_to_plan(
+        tmp_path, monkeypatch, capsys):
+    """Logs with no sidecar do not show the stroke or the supply pressures: the plan step
+    used to end `fitstiff diagnose` with exit 2 and no diagnosis.json (the four real O-ring
+    logs, after the whole diagnosis). The diagnosis stands; its verdict says how to plan."""
+    import fitstiff.cli.diagnose as command
+    from fitstiff.cli import main
+
+    source = REPO / "data" / "synthetic" / "null" / "triangle_1mm_s.csv"
+    rows = source.read_text().splitlines()
+    header = rows[0].split(",")
+    keep = [header.index("time_s"), header.index("displacement_mm"), header.index("force_N")]
+    csv = tmp_path / "bare.csv"                      # no sidecar: no stroke, no supply
+    csv.write_text("\n".join(",".join(r.split(",")[k] for k in keep) for r in rows) + "\n")
+    monkeypatch.setattr(command, "confusions", lambda result: ["viscous"])  # wants a plan
+    out = tmp_path / "out"
+    code = main(["diagnose", str(csv), "--baseline", "dahl", "--candidates", "viscous",
+                 "--out", str(out)])
+    printed = capsys.readouterr()
+    assert code == 0, printed.err
+    data = json.loads((out / "diagnosis.json").read_text())
+    said = [v for v in data["verdict"] if "not planned" in v]
+    assert len(said) == 1 and f"fitstiff plan {out}" in said[0]
+    assert "--stroke-range" in said[0] and "--pressures" in said[0]
+    assert not data["next_experiment"] and not (out / "plan").exists()
+    assert "not planned" in printed.out

@@ -16,9 +16,10 @@ from fitstiff.cli.fit import add_data_arguments, problem_options
 from fitstiff.cli.plan import planned_names, write_plan
 from fitstiff.diagnosis import ALPHA, HELDOUT, MIN_SHRINK, RESULT, diagnose
 from fitstiff.diagnosis.supermodel import CANDIDATES
+from fitstiff.errors import InputError
 from fitstiff.io.output import OutputDir, to_jsonable
 from fitstiff.physics.model import DEFAULT_MODEL
-from fitstiff.planning import PLAN_DIR, plan
+from fitstiff.planning import PLAN_DIR, Limits, plan
 from fitstiff.planning.plan import MAX_PROGRAMS
 from fitstiff.planning.rivals import confusions
 
@@ -50,7 +51,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                        help="when the diagnosis ends with a tie, a rival, an untestable or an "
                             "undecided candidate, plan the next experiment (diagnosis.json's "
                             f"next_experiment, the programs in {PLAN_DIR}/; limits from the "
-                            "logs, see fitstiff plan; default on)")
+                            "logs, see fitstiff plan; default on). Logs that do not show the "
+                            "limits get no plan: the verdict says so and how to make one")
     add_data_arguments(group)
     parser.add_argument("--json", action="store_true", help="print diagnosis.json to stdout")
     add_out_argument(parser)
@@ -75,8 +77,18 @@ def run(args) -> int:
         result = diagnose(logs, baseline=args.baseline, candidates=args.candidates,
                           alpha=args.alpha, min_shrink=args.min_shrink,
                           structure=args.structure, **options)
-        next_experiment = (plan(result, logs, **options)
-                           if args.plan and confusions(result) else None)
+        next_experiment, unplanned = None, ""
+        if args.plan and confusions(result):
+            # logs without a time column or sidecars do not show what the rig can do: the
+            # diagnosis stands without a plan, and says how to make one
+            try:
+                limits = Limits.from_logs(logs)
+            except InputError as exc:
+                unplanned = (f"the next experiment was not planned: {exc.found}; run "
+                             f"`fitstiff plan {out.path}` and {exc.fix}")
+                result = dataclasses.replace(result, verdict=(*result.verdict, unplanned))
+            else:
+                next_experiment = plan(result, logs, limits=limits, **options)
         if next_experiment is not None:
             result = dataclasses.replace(result, next_experiment=next_experiment.to_dict())
         out.write_json(RESULT, result.to_dict())
