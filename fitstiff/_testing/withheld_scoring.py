@@ -124,8 +124,8 @@ def structure_from_residuals(dataset_id: str, residuals: Path, rate_scale: float
     with np.load(path) as z:
         after = [np.asarray(z[f"after_{k}"]) for k in range(len(logs))]
         if "noise_N" not in z:
-            raise ValueError(f"{path}: no noise_N (kept before the floor read the baseline's "
-                             "residual); run the benchmark with --residuals again")
+            raise ValueError(f"{path}: no noise_N (kept before the benchmark kept the "
+                             "diagnosis' floor); run benchmarks/withheld.py --residuals again")
         pooled = float(z["noise_N"])
     masks = [w > 0 for w in problem.sample_weights]
     return structure_records(describe_structure(problem.logs, problem.segmentations, after,
