@@ -77,16 +77,16 @@ def run(args) -> int:
         result = diagnose(logs, baseline=args.baseline, candidates=args.candidates,
                           alpha=args.alpha, min_shrink=args.min_shrink,
                           structure=args.structure, **options)
-        next_experiment, unplanned = None, ""
+        next_experiment = None
         if args.plan and confusions(result):
             # logs without a time column or sidecars do not show what the rig can do: the
             # diagnosis stands without a plan, and says how to make one
             try:
                 limits = Limits.from_logs(logs)
             except InputError as exc:
-                unplanned = (f"the next experiment was not planned: {exc.found}; run "
-                             f"`fitstiff plan {out.path}` and {exc.fix}")
-                result = dataclasses.replace(result, verdict=(*result.verdict, unplanned))
+                said = (f"the next experiment was not planned: {exc.found}; run "
+                        f"`fitstiff plan {out.path}` and {exc.fix}")
+                result = dataclasses.replace(result, verdict=(*result.verdict, said))
             else:
                 next_experiment = plan(result, logs, limits=limits, **options)
         if next_experiment is not None:
