@@ -71,7 +71,7 @@ def run_dataset(dataset_id: str, rate_scale: float = 1.0, short: bool = False,
     if residuals is not None:
         Path(residuals).mkdir(parents=True, exist_ok=True)
         np.savez(Path(residuals) / (dataset_id.replace("/", "__") + ".npz"),
-                 **d.heldout_arrays())
+                 noise_N=d.gap["noise_N"], **d.heldout_arrays())
     gap = d.gap
     before, after, noise = (gap["heldout_rms_N"], gap["final_heldout_rms_N"], gap["noise_N"])
     ranked = [{"effect": c.effect, "p_value": c.p_value, "log_p_value": c.log_p_value,
@@ -113,18 +113,21 @@ def structure_from_residuals(dataset_id: str, residuals: Path, rate_scale: float
     """The structure step of :func:`~fitstiff.diagnosis.diagnose` on a dataset's kept
     held-out residuals (``run_dataset(..., residuals=DIR)``): the same inputs the
     diagnosis gives it (its problem's logs, segmentations and counted samples, the pooled
-    noise floor), without diagnosing again. ``rule``: ``alpha``, ``min_shrink`` of
-    :func:`~fitstiff.diagnosis.structure.describe_structure`."""
+    noise floor kept with them), without diagnosing again. ``rule``: ``alpha``,
+    ``min_shrink`` of :func:`~fitstiff.diagnosis.structure.describe_structure`."""
     from fitstiff.diagnosis.structure import describe_structure
     from fitstiff.inference.problem import Problem
-    from fitstiff.signal.noise import pooled_noise_floor
 
     logs, truth = make_dataset(dataset_id, rate_scale=rate_scale, short=short)
     problem = Problem(logs, model=truth["baseline"])
-    with np.load(Path(residuals) / (dataset_id.replace("/", "__") + ".npz")) as z:
+    path = Path(residuals) / (dataset_id.replace("/", "__") + ".npz")
+    with np.load(path) as z:
         after = [np.asarray(z[f"after_{k}"]) for k in range(len(logs))]
+        if "noise_N" not in z:
+            raise ValueError(f"{path}: no noise_N (kept before the floor read the baseline's "
+                             "residual); run the benchmark with --residuals again")
+        pooled = float(z["noise_N"])
     masks = [w > 0 for w in problem.sample_weights]
-    _, pooled = pooled_noise_floor(problem.logs, masks)
     return structure_records(describe_structure(problem.logs, problem.segmentations, after,
                                                 masks, pooled, **rule))
 
