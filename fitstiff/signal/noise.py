@@ -1,4 +1,4 @@
-"""The noise of a channel, estimated from the data alone (not from a model's misfit).
+"""The noise of a channel, estimated from its high-frequency part (not from a model's misfit).
 
 Used for the force channel's noise floor in the diagnosis and for the correlation of the
 displacement noise behind the turning points' errors (:class:`~fitstiff.inference.problem.Problem`).
