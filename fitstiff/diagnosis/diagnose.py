@@ -4,7 +4,8 @@ The steps (DESIGN §6):
 
 1. build the baseline and every candidate as one compiled super-model
    (:class:`~fitstiff.diagnosis.supermodel.SuperProblem`), fit the baseline, estimate each
-   log's noise floor from the data alone (:func:`~fitstiff.signal.noise.noise_floor`);
+   log's noise floor from the high-frequency part of the data and of the baseline's residual
+   (:func:`~fitstiff.signal.noise.noise_floor`);
 2. **where**: the baseline's held-out residuals per cell (:mod:`fitstiff.diagnosis.gap`);
 3. **which**: score statistics of every candidate at its null
    (:mod:`fitstiff.diagnosis.screen`), then held-out refits of the promising ones;
@@ -29,6 +30,7 @@ from collections import Counter
 from collections.abc import Sequence
 from typing import NamedTuple
 
+import numpy as np
 import pandas as pd
 
 from fitstiff.diagnosis._candidates import fitted_sizes
@@ -83,9 +85,10 @@ def diagnose(logs: Sequence[Log], *, baseline: str = DEFAULT_MODEL,
     clock = {"start": time.perf_counter()}
     names, skipped = candidate_names(baseline, candidates, logs=logs)
     sp = SuperProblem(logs, baseline, names, selection=Selection.given(selection, options))
-    st = _setting(sp, names, alpha=alpha, min_shrink=min_shrink)
     clock["setup"] = time.perf_counter()
-    base = _baseline(st)
+    fit = _baseline_fit(sp)
+    st = _setting(sp, names, fit, alpha=alpha, min_shrink=min_shrink)
+    base = _baseline(st, fit)
     search = base.search
     clock["baseline"] = time.perf_counter()
     run_rounds(st, search)
@@ -116,12 +119,39 @@ def _check(logs: Sequence[Log], alpha: float, min_shrink: float) -> None:
                          "give e.g. 0.3")
 
 
-def _setting(sp: SuperProblem, names, *, alpha: float, min_shrink: float) -> Setting:
-    """The folds, each log's noise floor from the data alone and the weights of the search."""
+class _FullFit(NamedTuple):
+    """The baseline fitted to all the data: the solver's ``theta``, ``hold`` and whether the
+    solve converged."""
+
+    theta: np.ndarray
+    hold: np.ndarray
+    converged: bool
+
+
+def _baseline_fit(sp: SuperProblem) -> _FullFit:
+    """The baseline fitted to all the data. It screens, breaks ties and reports (the folds fit
+    their own training parts), and its prediction lets the noise floors set aside the signal's
+    curvature (:func:`_setting`)."""
+    active = list(sp.baseline_terms)
+    theta, hold = sp.start()
+    theta, converged, _, _ = sp.solve(theta, hold, sp.model_mask(active), sp.nuisance_mask(),
+                                      sp.entry_weights())
+    return _FullFit(theta, maxwell_shape(sp, theta, hold, active), converged)
+
+
+def _setting(sp: SuperProblem, names, fit: _FullFit, *, alpha: float,
+             min_shrink: float) -> Setting:
+    """The folds, each log's noise floor and the weights of the search. A floor is read from
+    the second differences of the log's force and of the baseline's full-data residual, the
+    smaller per lag (:func:`~fitstiff.signal.noise.noise_floor` with a ``reference``): the
+    differences of a fast log's pre-sliding curves are not noise; a missing effect's slow
+    misfit cancels in them."""
     problem = sp.problem
     folds = folds_for(sp)
     masks = [w > 0 for w in problem.sample_weights]
-    noise, noise_pooled = pooled_noise_floor(problem.logs, masks)
+    x = np.asarray(sp.physical(fit.theta, fit.hold, sp.model_mask(sp.baseline_terms)))
+    noise, noise_pooled = pooled_noise_floor(problem.logs, masks,
+                                             references=sp.forces(x, fit.theta))
     return Setting(sp=sp, folds=folds, names=names, noise=noise, noise_pooled=noise_pooled,
                    masks=masks, weights=sp.entry_weights(), alpha=alpha,
                    min_shrink=min_shrink, spent=Counter())
@@ -136,16 +166,13 @@ class _Baseline(NamedTuple):
     heldout: HeldOut
 
 
-def _baseline(st: Setting) -> _Baseline:
-    """Fit the baseline. The full-data fit screens, breaks ties and reports; the folds fit
-    their own training parts from starts of their own (the fold rule,
+def _baseline(st: Setting, fit: _FullFit) -> _Baseline:
+    """The baseline's search start: its full-data ``fit``, and the folds fitting their own
+    training parts from starts of their own (the fold rule,
     :mod:`fitstiff.diagnosis.select`)."""
     sp = st.sp
     active = list(sp.baseline_terms)
-    theta, hold = sp.start()
-    theta, converged, _, _ = sp.solve(theta, hold, sp.model_mask(active), sp.nuisance_mask(),
-                                      st.weights)
-    hold = maxwell_shape(sp, theta, hold, active)
+    theta, hold, converged = fit
     with phase(st.spent, "baseline_folds"):
         current = held_out(sp, st.folds, fold_starts(sp, st.folds), active)
     fits = fold_fits(sp, current, active)

@@ -110,7 +110,9 @@ def compare(logs: Sequence[Log], specs: Sequence[str], **fit_kw) -> tuple[Compar
                      "parameters": summary["parameters"], "derived": summary["derived"]})
     if len(logs) >= 2:
         key = "heldout_rms_N"
-        tie = TIE * pooled_noise(logs)
+        best = min(results, key=lambda res: res.rms_N)      # the logs as its fit read them
+        tie = TIE * pooled_noise(best.problem.logs, references=[
+            np.asarray(one["force"]) for one in best.problem.per_log(best.theta)])
         order = rank_held_out([r["heldout_rms_N"] for r in rows], [r["bic"] for r in rows],
                               [res.identifiability.identifiable for res in results], tie=tie)
     else:
@@ -127,10 +129,15 @@ def compare(logs: Sequence[Log], specs: Sequence[str], **fit_kw) -> tuple[Compar
 TIE = 0.01
 
 
-def pooled_noise(logs: Sequence[Log]) -> float:
-    """The logs' force noise floor (N), pooled over their samples (:func:`noise_floor`)."""
+def pooled_noise(logs: Sequence[Log], *, references: Sequence[np.ndarray] | None = None
+                 ) -> float:
+    """The logs' force noise floor (N), pooled over their samples (:func:`noise_floor`;
+    ``references``: per log, a fitted model's predicted force, as the diagnosis reads its
+    floors with its baseline's)."""
     counts = np.array([len(log) for log in logs], dtype=float)
-    sigmas = np.array([noise_floor(np.asarray(log.force)).sigma for log in logs])
+    refs = [None] * len(logs) if references is None else list(references)
+    sigmas = np.array([noise_floor(np.asarray(log.force), reference=g).sigma
+                       for log, g in zip(logs, refs)])
     return math.sqrt(float(np.sum(counts * sigmas**2) / counts.sum()))
 
 

@@ -75,7 +75,8 @@ def diagnosis_report(run: RunDirectory, *, draws: int) -> Report:
     summary = (_diagnosis_tables(result)
                + paragraph(f"Held-out RMS of the baseline {gap['heldout_rms_N']:.3g} N, of "
                     f"{result.final_model} {gap['final_heldout_rms_N']:.3g} N; noise floor "
-                    f"{gap['noise_N']:.3g} N pooled over the logs, from the data alone ("
+                    f"{gap['noise_N']:.3g} N pooled over the logs, from the high-frequency "
+                    "part of the force and of the baseline's residual ("
                     + per_log_noise({k: float(v["sigma_N"])
                                       for k, v in result.noise_N.items()},
                                      what="noise floor") + "). Folds: "
