@@ -2,16 +2,16 @@
 
 Datasets (:mod:`fitstiff._testing.withheld`) are generated blind to the diagnosis by an
 independent NumPy rig simulator (:mod:`fitstiff._testing.rig_sim`), three logs each; the
-families (``single``, ``null``, ``ool``, ``pair``, ``missing``) and their right answers are
-described there. Each dataset is diagnosed with :func:`fitstiff.diagnosis.diagnose`
+families (``single``, ``null``, ``ool``, ``pair``, ``missing``, ``law``) and their right
+answers are described there. Each dataset is diagnosed with :func:`fitstiff.diagnosis.diagnose`
 (``chamber+dahl``, or ``dahl`` when the chamber is withheld; all candidates) and scored by
 :mod:`fitstiff._testing.withheld_scoring` (the pairs run are its ``PAIRS``).
 
 Scores: top-1 identification (the first accepted effect, else the best-ranked
 candidate), accepted-set exact match, false-alarm rate on nulls with its Wilson 95 % interval,
 median shrink ``(before - after) / (before - noise)`` of the held-out RMS, "unexplained" rate on
-out-of-library data, both-found rate on pairs, not-testable rate on missing excitation,
-detectability calibration (found rate of effects at or above the size the diagnosis reports
+out-of-library data, both-found rate on pairs, not-testable rate on missing excitation, the
+law's candidate accepted (alone) on seals whose whole friction is another law, detectability calibration (found rate of effects at or above the size the diagnosis reports
 as detectable at 80 % power) and the confusion matrix (true x first named effect), written to
 ``benchmarks/results/withheld.json`` and ``withheld_confusion.png``.
 
@@ -189,7 +189,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     summary = score({k: v for k, v in records.items() if k in set(ids)})
     print(f"wall {time.perf_counter() - start:.0f} s for {len(todo)} datasets")
     print(json.dumps({k: summary[k] for k in ("single", "null", "ool", "pair", "missing",
-                                               "detectability", "wall_s")},
+                                               "law", "detectability", "wall_s")},
                      default=float)[:4000])
 
 

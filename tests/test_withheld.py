@@ -136,7 +136,7 @@ def test_wilson_interval_matches_the_closed_form():
 def _rec(family, withheld, accepted, top1=None, size=1.0, det=0.5):
     return {"id": f"{family}/{'+'.join(withheld)}/{len(accepted)}{top1}{size}",
             "family": family, "withheld": withheld, "expected": withheld if family in
-            ("single", "pair") else [], "accepted": accepted,
+            ("single", "pair", "law") else [], "accepted": accepted,
             "top1": top1 or (accepted[0] if accepted else None),
             "sizes": {e: size for e in withheld},
             "detectability": {e: {"testable": family != "missing", "size": det}
@@ -154,7 +154,10 @@ def test_scores_and_confusion_matrix_on_hand_made_results():
             _rec("ool", [], []), _rec("ool", [], ["maxwell_slip"]),
             _rec("pair", ["viscous", "inertia"], ["inertia", "viscous"]),
             _rec("pair", ["viscous", "inertia"], ["viscous"]),
-            _rec("missing", ["dwell_stiction"], [])]
+            _rec("missing", ["dwell_stiction"], []),
+            _rec("law", ["maxwell_slip"], ["maxwell_slip"]),
+            _rec("law", ["maxwell_slip"], ["maxwell_slip", "viscous"]),
+            _rec("law", ["maxwell_slip"], ["rig_compliance"])]
     for i, r in enumerate(recs):
         r["id"] += str(i)
     s = wh.score({r["id"]: r for r in recs})
@@ -165,6 +168,9 @@ def test_scores_and_confusion_matrix_on_hand_made_results():
     assert s["ool"]["unexplained"]["k"] == 1
     assert s["pair"]["both_found"]["k"] == 1
     assert s["missing"]["not_testable"]["k"] == 1
+    assert s["law"]["exact"]["k"] == 1 and s["law"]["found"]["k"] == 2
+    assert s["law"]["exact"]["n"] == 3
+    assert s["law"]["named"] == ["maxwell_slip", "maxwell_slip", "rig_compliance"]
     # viscous 0.1 below its detectable size 0.5; the other three above: 2 of 3 found
     assert s["detectability"]["above"]["k"] == 2 and s["detectability"]["above"]["n"] == 3
     assert s["detectability"]["below"]["n"] == 1
@@ -215,7 +221,8 @@ def test_plot_confusion_draws_on_the_given_axes():
 def test_dataset_ids_interleave_families_and_are_reproducible():
     ids = wh.dataset_ids(seeds=2, nulls=4, pair_seeds=1)
     n_ool = len(datasets.OUT_OF_LIBRARY)
-    assert len(ids) == len(set(ids)) == 13 * 2 + 4 + n_ool * 2 + 8 + len(datasets.MISSING) * 2
+    assert len(ids) == len(set(ids)) == (13 * 2 + 4 + n_ool * 2 + 8 + len(datasets.MISSING) * 2
+                                         + len(datasets.LAWS) * 2)
     assert len(datasets.OUT_OF_LIBRARY) == 7 and set(datasets.OOL_VARIABLE) == set(
         datasets.OUT_OF_LIBRARY)
     assert {i.split("/")[0] for i in ids[: len(ids) // 2 + 8]} == set(wh.FAMILIES)
@@ -228,6 +235,23 @@ def test_dataset_ids_interleave_families_and_are_reproducible():
     assert len({round(p["supply_bar"], 9) for p in miss["logs"]}) == 1
     assert all(0 < p["x0_mm"] < 700 for p in miss["logs"])
     assert not math.isnan(ta["base"]["Fc_N"])
+
+
+def test_a_law_dataset_is_a_seal_whose_whole_friction_is_that_law():
+    """``law/maxwell_slip``: no Dahl term; three elements of unequal stiffness and slip force
+    whose slip forces add up to the seal's breakaway (12-22 N), reproducible from the id."""
+    logs, truth = datasets.make_dataset("law/maxwell_slip/3")
+    again, _ = datasets.make_dataset("law/maxwell_slip/3")
+    assert np.array_equal(logs[1].force, again[1].force)
+    assert truth["expected"] == ["maxwell_slip"] and truth["base"]["Fc_N"] == 0.0
+    k, delta = (np.array(truth["effects"]["maxwell_slip"][p]) for p in ("k", "delta"))
+    slip = k * delta
+    assert k.size == 3 and len(set(np.round(k))) == 3 and len(set(np.round(slip, 6))) == 3
+    assert 12.0 <= slip.sum() <= 22.0
+    assert np.all(np.diff(delta) > 0) and 0.08e-3 <= delta[0] <= 0.2e-3
+    assert truth["sizes"]["maxwell_slip"] == pytest.approx(k.sum() / 1e3)
+    _, other = datasets.make_dataset("single/maxwell_slip/3")
+    assert other["base"]["Fc_N"] > 0           # the single family keeps its Dahl seal
 
 
 @pytest.mark.slow

@@ -23,6 +23,10 @@ Families (dataset ids ``family/what/seed``; the id seeds the draws):
 ``missing``  an effect without its excitation (dwell stiction without standstills, pressure
              friction at one supply pressure, inertia at slow speeds without sweeps or fast
              moves); right answer: "not testable", nothing named.
+``law``      the seal's friction **is** another law than the baseline's Dahl (``LAWS``): a
+             Maxwell-slip seal of three elements of unequal stiffness and slip force, no Dahl
+             term; right answer: that law's candidate (issue 31: a candidate must be able to
+             become the friction law it names).
 """
 
 from __future__ import annotations
@@ -52,7 +56,9 @@ MISSING = ("dwell_stiction", "pressure_friction", "inertia")
 #: the speed (mm/s) and sample rate (Hz) of every log of ``missing/inertia``: reversals at this
 #: speed accelerate the piston by under 0.1 m/s^2 over the rig's rounded corners
 SLOW = (0.5, 100.0)
-FAMILIES = ("single", "null", "ool", "pair", "missing")
+#: friction laws of the ``law`` family (the seal's whole friction, the baseline's Dahl absent)
+LAWS = ("maxwell_slip",)
+FAMILIES = ("single", "null", "ool", "pair", "missing", "law")
 
 #: effect sizes: (low, high) of the main parameter in the diagnosis' display unit, drawn
 #: log-uniform; the low ends sit near what the three logs (about 5000 samples) at 0.1-0.3 N noise detect
@@ -109,6 +115,21 @@ def draw_effect(name: str, rng: np.random.Generator, *, strong: bool = False
         return {"k": k.tolist(), "delta": delta.tolist()}, size
     if name == "chamber":
         return {}, 1.0
+    raise KeyError(name)
+
+
+def draw_law(name: str, rng: np.random.Generator, *, breakaway: float
+             ) -> tuple[dict[str, object], float]:
+    """A seal whose whole friction is the law ``name`` (SI parameters) and its size in the
+    display unit. ``maxwell_slip``: three elements whose slip displacements spread over
+    0.08-1.8 mm (the first 0.08-0.2 mm, each next 2-3 times the last) and whose slip forces
+    split ``breakaway`` (N) unequally (a Dirichlet(2, 2, 2) draw); the size is the total
+    initial stiffness (N/mm)."""
+    if name == "maxwell_slip":
+        delta = _loguniform(rng, 0.08e-3, 0.2e-3) * np.cumprod(
+            np.r_[1.0, _loguniform(rng, 2.0, 3.0), _loguniform(rng, 2.0, 3.0)])
+        k = breakaway * rng.dirichlet([2.0, 2.0, 2.0]) / delta
+        return {"k": k.tolist(), "delta": delta.tolist()}, float(k.sum() / 1e3)
     raise KeyError(name)
 
 
@@ -176,13 +197,13 @@ def make_dataset(dataset_id: str, *, rate_scale: float = 1.0, substeps: int = SU
     ool: dict[str, dict[str, float]] = {}
     flags = {"pauses": True, "holds": True, "sweeps": True}
     one_pressure = False
-    if family in ("single", "missing"):
+    if family in ("single", "missing", "law"):
         names = [parts[1]]
     elif family == "pair":
         names = parts[1].split("+")
     else:
         names = []
-    for name in names:
+    for name in names if family != "law" else ():
         effects[name], sizes[name] = draw_effect(name, rng, strong=family == "pair")
     if family == "ool":
         ool[parts[1]] = draw_out_of_library(parts[1], rng)
@@ -198,6 +219,9 @@ def make_dataset(dataset_id: str, *, rate_scale: float = 1.0, substeps: int = SU
     baseline = "dahl" if "chamber" in effects else "chamber+dahl"
     sigma0 = _loguniform(rng, 25e3, 60e3)
     fc = rng.uniform(12.0, 22.0)
+    if family == "law":          # the law carries the seal's whole friction: no Dahl
+        effects[names[0]], sizes[names[0]] = draw_law(names[0], rng, breakaway=fc)
+        fc = 0.0
     n_exp = rng.uniform(1.05, 1.4)
     dead_a, dead_b = rng.uniform(5e-3, 40e-3, size=2)
     positions = rng.permutation([0.15, 0.35, 0.55]) + rng.uniform(-0.04, 0.04, size=3)

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fitstiff._testing.withheld import (EFFECTS, FAMILIES, MISSING, OOL_VARIABLE,
+from fitstiff._testing.withheld import (EFFECTS, FAMILIES, LAWS, MISSING, OOL_VARIABLE,
                                         OUT_OF_LIBRARY, make_dataset)
 
 __all__ = ["PAIRS", "dataset_ids", "run_dataset", "wilson", "named", "confusion", "score",
@@ -46,6 +46,8 @@ def dataset_ids(*, families: Sequence[str] = FAMILIES, seeds: int = 5, nulls: in
         groups += [[f"pair/{a}+{b}/{s}" for s in range(pair_seeds)] for a, b in PAIRS]
     if "missing" in families:
         groups += [[f"missing/{e}/{s}" for s in range(seeds)] for e in MISSING]
+    if "law" in families:
+        groups += [[f"law/{e}/{s}" for s in range(seeds)] for e in LAWS]
     keyed = [((i + 0.5) / len(g), j, d) for j, g in enumerate(groups) for i, d in enumerate(g)]
     return [d for _, _, d in sorted(keyed)]
 
@@ -239,6 +241,11 @@ def score(records: Mapping[str, Mapping[str, object]]) -> dict[str, object]:
         "not_testable": _rate(sum(r["detectability"].get(r["withheld"][0], {})
                                   .get("testable") is False for r in missing), len(missing)),
         "nothing_named": _rate(sum(not r["accepted"] for r in missing), len(missing))}
+    laws = by["law"]
+    out["law"] = {"exact": _rate(sum(r["accepted"] == r["withheld"] for r in laws), len(laws)),
+                  "found": _rate(sum(r["withheld"][0] in r["accepted"] for r in laws),
+                                 len(laws)),
+                  "named": [named(r) for r in laws]}
     # detectability calibration: effects at or above the reported detectable size
     above = below = found_above = found_below = 0
     for r in single:
