@@ -344,7 +344,7 @@ def describe(r: Mapping[str, object]) -> str:
     """One line of a record: id, right or not, accepted, top-1, held-out RMS, sizes, time."""
     if "error" in r:
         return f"{r['id']:<40} ERROR {r['error']}"
-    ok = ("ok" if r["accepted"] == r["expected"] else "--")
+    ok = ("ok" if sorted(r["accepted"]) == sorted(r["expected"]) else "--")   # a pair: either order
     sizes = " ".join(f"{k}={v:.3g}" for k, v in r["sizes"].items())
     return (f"{r['id']:<40} {ok} accepted {r['accepted']} top1 {r['top1']} "
             f"{r['heldout_rms_before_N']:.3g}->{r['heldout_rms_after_N']:.3g} N "

@@ -279,6 +279,7 @@ def plan(diagnosis: Diagnosis, logs: Sequence[Log], *, limits: Limits | None = N
     programs: list[PlannedProgram] = []
     unplanned: list[dict] = []
     naive_log = max(logs, key=len)
+    rivals.prefetch(found[:most])
     for confusion in found[:most]:
         _plan_one(confusion, rivals, logs, limits, noise, naive_log, programs, unplanned, spent)
     waiting = [c for c in found if any(p.separates == c.separates for p in programs)]
@@ -289,6 +290,7 @@ def plan(diagnosis: Diagnosis, logs: Sequence[Log], *, limits: Limits | None = N
                               + " come first (it may be their shadow); diagnose them, then "
                                 "plan again"} for c in later]
     else:       # the logs settle every root question, or no program can: nothing to wait for
+        rivals.prefetch(later[:most])
         for confusion in later[:most]:
             _plan_one(confusion, rivals, logs, limits, noise, naive_log, programs, unplanned,
                       spent)
