@@ -266,6 +266,11 @@ def test_quick_run_of_one_null_and_one_effect_through_the_diagnosis():
     assert null["accepted"] == [], wh.describe(null)
     assert effect["detectability"]["viscous"]["testable"]
     assert effect["sizes"]["viscous"] > effect["detectability"]["viscous"]["size"]
+    # every refit is kept with its round and held-out figures (the rule's calibration data)
+    (viscous,) = [r for r in effect["refits"] if r["effect"] == "viscous"]
+    assert viscous["accepted"] and viscous["round"] == 1
+    assert viscous["after_N"] < viscous["before_N"] == effect["heldout_rms_before_N"]
+    assert all(not r["accepted"] for r in null["refits"])
 
 
 @pytest.mark.parametrize("dataset, accepted, top1", [
