@@ -99,11 +99,19 @@ def fitted_sizes(sp: SuperProblem, theta, hold, active, weights,
     dof = max(rf.size - cols.size, 1)
     rho = float(np.clip(np.corrcoef(rf[:-1], rf[1:])[0, 1], 0.0, 0.99)) if rf.size > 2 else 0.0
     scale = float(rf @ rf) / dof * (1.0 + rho) / (1.0 - rho)
+    # a column with a non-finite entry (a parameter at the edge of its law: Dahl's sigma0 /
+    # Fc with Fc near 0 once a Maxwell-slip law has taken the friction over) determines
+    # nothing; without it the SVD did not converge (withheld law/maxwell_slip/3)
+    finite = np.all(np.isfinite(jf), axis=0)
+    cols = cols[finite]
+    jf = jf[:, finite]
     cov = scale * np.linalg.pinv(jf.T @ jf)
     position = {int(c): j for j, c in enumerate(cols)}
     par, out = sp.problem.par, {}
     for effect in effects:
         for k in sp.elements(effect, fitted=True):
+            if int(k) not in position:
+                continue
             var = cov[position[int(k)], position[int(k)]]
             if not (np.isfinite(var) and var > 0):
                 continue

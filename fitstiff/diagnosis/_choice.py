@@ -13,7 +13,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from fitstiff.diagnosis._refit import FoldStarts, Tried, judge, refit_start
+from fitstiff.diagnosis._refit import FoldStarts, Start, Tried, judge, refit_start
 from fitstiff.diagnosis.screen import Score, collinear_groups
 from fitstiff.diagnosis.select import MIN_GAIN, HeldOut, held_out
 from fitstiff.diagnosis.supermodel import SuperProblem
@@ -31,12 +31,14 @@ _TIE = TIE
 
 
 class FullFit(NamedTuple):
-    """A candidate's model fitted to all the data: where the solve ended, whether it
-    converged, and its BIC (infinite when it did not converge)."""
+    """A candidate's model fitted to all the data: where the solve ended (``theta``, and
+    ``hold``: the start's held values), whether it converged, and its BIC (infinite when it
+    did not converge)."""
 
     theta: np.ndarray
     converged: bool
     bic: float
+    hold: np.ndarray | None = None
 
 
 class Choice(NamedTuple):
@@ -83,8 +85,8 @@ def choose(sp: SuperProblem, passing: Sequence[Tried], theta, hold, active, weig
     holds: dict[str, np.ndarray] = {}
     for v in tied:
         start = refit_start(sp, v.score, theta, hold, active, weights)
-        fits[v.effect] = full_fit(sp, v.score, start.theta, start.hold, active, weights)
-        holds[v.effect] = start.hold
+        fits[v.effect] = full_fit(sp, v.score, start, active, weights)
+        holds[v.effect] = fits[v.effect].hold
     chosen = min(tied, key=lambda v: fits[v.effect].bic)
     if not math.isfinite(fits[chosen.effect].bic):
         chosen = best
@@ -132,17 +134,25 @@ def pair(sp: SuperProblem, folds, tried: Mapping[str, Tried], starts: FoldStarts
                 start.hold)
 
 
-def full_fit(sp: SuperProblem, s: Score, theta, hold, active, weights) -> FullFit:
-    """The model ``active`` + ``s.effect`` fitted to all the data from ``(theta, hold)``, with
-    its BIC: ``N log RSS + k log N`` over the ``N`` weighted residual entries, ``k`` the
-    candidate's fitted parameters (the model's other parameters are common to every
-    candidate); infinite when the solve did not converge."""
-    theta, ok, _, cost = sp.solve(theta, hold, sp.model_mask(list(active) + [s.effect]),
-                                  sp.nuisance_mask(), weights)
+def full_fit(sp: SuperProblem, s: Score, start: Start, active, weights) -> FullFit:
+    """The model ``active`` + ``s.effect`` fitted to all the data from ``start`` (and from
+    each of its ``also``, the converged solve of lowest cost kept), with its BIC:
+    ``N log RSS + k log N`` over the ``N`` weighted residual entries, ``k`` the candidate's
+    fitted parameters (the model's other parameters are common to every candidate); infinite
+    when the solve did not converge."""
+    best = None
+    for one in (start, *start.also):
+        theta, ok, _, cost = sp.solve(one.theta, one.hold,
+                                      sp.model_mask(list(active) + [s.effect]),
+                                      sp.nuisance_mask(), weights)
+        key = (not ok, cost if math.isfinite(cost) else math.inf)
+        if best is None or key < best[0]:
+            best = (key, theta, ok, cost, one.hold)
+    _, theta, ok, cost, hold = best
     n = float(np.count_nonzero(np.asarray(weights) > 0))
     k = sp.elements(s.effect, fitted=True).size
     bic = n * math.log(2.0 * cost) + k * math.log(n) if ok and cost > 0 else math.inf
-    return FullFit(theta, ok, bic)
+    return FullFit(theta, ok, bic, hold)
 
 
 def tie_order(sp: SuperProblem, scores, accepted, theta, hold, active, weights, *,
@@ -158,6 +168,5 @@ def tie_order(sp: SuperProblem, scores, accepted, theta, hold, active, weights, 
             continue
         for s in group:
             start = refit_start(sp, s, theta, hold, active, weights)
-            keys[s.effect] = (lead, full_fit(sp, s, start.theta, start.hold, active,
-                                             weights).bic)
+            keys[s.effect] = (lead, full_fit(sp, s, start, active, weights).bic)
     return keys

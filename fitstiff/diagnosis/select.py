@@ -101,10 +101,13 @@ class Fold:
 class FoldFit:
     """A fold's model fitted to its training part: ``theta`` (its left-out log's nuisances
     as they were at the start: never fitted to that log here) and ``hold`` (physical values of
-    the model entries that are not free)."""
+    the model entries that are not free). As a start, ``also``: other starts of the same
+    solve (from the same training data); :func:`held_out` solves from each and keeps the
+    lowest training cost."""
 
     theta: np.ndarray
     hold: np.ndarray
+    also: tuple[FoldFit, ...] = ()
 
 
 def fold_starts(sp: SuperProblem, folds: Sequence[Fold]) -> list[FoldFit]:
@@ -162,15 +165,27 @@ def held_out(sp: SuperProblem, folds: Sequence[Fold], starts: Sequence[FoldFit],
     free_model[extra] = True
     none = np.zeros(sp.n_model, dtype=bool)
 
+    def train(start: FoldFit, nuisances: np.ndarray, weights: np.ndarray):
+        """``(theta, converged, steps, hold)``: the training solve from ``start`` and from each
+        of its ``also``, the converged one of lowest training cost kept (steps: all)."""
+        best, steps = None, 0
+        for s in (start, *start.also):
+            th, ok, n, cost = sp.solve(s.theta, s.hold, free_model, nuisances, weights)
+            steps += int(n)
+            key = (not bool(ok), float(cost) if np.isfinite(cost) else np.inf)
+            if best is None or key < best[0]:
+                best = (key, th, bool(ok), s.hold)
+        _, th, ok, hold = best
+        return th, ok, steps, hold
+
     def one(fold: Fold, start: FoldFit):
         """``(log, sample mask or None, residual, converged, steps, fit)`` of one fold."""
         weights = fold.training(sp)
         if fold.log is not None:
             others = [i for i in range(p.n_logs) if i != fold.log]
-            th, ok1, s1, _ = sp.solve(start.theta, start.hold, free_model,
-                                      sp.nuisance_mask(others), weights)
+            th, ok1, s1, hold = train(start, sp.nuisance_mask(others), weights)
             # the trained model held (in physical values), only the log's nuisances fitted
-            x = np.asarray(sp.physical(th, start.hold, free_model))
+            x = np.asarray(sp.physical(th, hold, free_model))
             th_out, ok2, s2, _ = sp.solve(th, x, none, sp.nuisance_mask([fold.log]),
                                           sp.entry_weights(logs=[fold.log]))
             force = sp.forces(x, th_out)[fold.log]
@@ -182,9 +197,8 @@ def held_out(sp: SuperProblem, folds: Sequence[Fold], starts: Sequence[FoldFit],
         # log's nuisances are
         own = (sp.nuisance_mask([i], names=_BLOCK_OWN) if mask[0]
                else np.zeros(sp.size - sp.n_model, dtype=bool))
-        th, ok, s1, _ = sp.solve(start.theta, start.hold, free_model,
-                                 sp.nuisance_mask() & ~own, weights)
-        x = np.asarray(sp.physical(th, start.hold, free_model))
+        th, ok, s1, hold = train(start, sp.nuisance_mask() & ~own, weights)
+        x = np.asarray(sp.physical(th, hold, free_model))
         th_out, ok2, s2 = th, True, 0
         if own.any():
             th_out, ok2, s2, _ = sp.solve(th, x, none, own, sp.entry_weights(samples={i: mask}))
