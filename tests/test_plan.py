@@ -343,29 +343,6 @@ def test_a_rival_fitted_once_answers_to_the_name_it_is_asked_for(pause_free):
     assert again.model is a1.model                     # one fit, two names
 
 
-def test_rivals_fitted_ahead_side_by_side_are_the_rivals_fitted_one_by_one(pause_free):
-    """``Rivals.prefetch`` fits a plan's rivals two at a time; each is the fit a plan asks
-    for one by one, to the bit, and a confusion whose effect the model lacks is left for the
-    plan to report."""
-    from fitstiff.planning.rivals import Confusion, Rivals
-
-    found = [Confusion("rival", ("viscous", "stribeck"), ""),
-             Confusion("undecided", ("stribeck", ABSENT), ""),
-             Confusion("requested", ("rubber_band", ABSENT), "")]
-    ahead, one_by_one = (Rivals(pause_free, "chamber+dahl+viscous") for _ in range(2))
-    ahead.prefetch(found)
-    assert len(ahead._fits) == 3                       # two of the pair, one absent
-    pairs = [r.pair(found[0]) for r in (ahead, one_by_one)]
-    singles = [r.single("stribeck") for r in (ahead, one_by_one)]
-    for x, y in [*zip(*pairs), (singles[0][0], singles[1][0])]:
-        assert x.name == y.name and x.cost == y.cost
-        np.testing.assert_array_equal(x.values, y.values)
-        np.testing.assert_array_equal(x.information, y.information)
-    np.testing.assert_array_equal(singles[0][1], singles[1][1])
-    with pytest.raises(InputError):
-        ahead.single("rubber_band")
-
-
 def test_diagnose_without_the_rigs_limits_writes_its_diagnosis_and_says_how_to_plan(
         tmp_path, monkeypatch, capsys):
     """Logs with no sidecar do not show the stroke or the supply pressures: the plan step

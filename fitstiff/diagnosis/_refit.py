@@ -214,8 +214,8 @@ def refit_start(sp: SuperProblem, s: Score, theta, hold, active, weights) -> Sta
         taken = Start(np.array(theta, dtype=float), handover)
         if cost(taken) < cost(best):
             # the law fits the start better: solved from both, the lower training cost kept
-            # (from the handover, the soft long-slip law/maxwell_slip/1 ended 0.86 N held out
-            # against 0.31 N from the one-step values)
+            # (from the handover alone, the soft long-slip law/maxwell_slip/1, short logs,
+            # ended 1.07 N held out, from the one-step values 0.31 N)
             out = Start(sp.to_theta(taken.theta, taken.hold, moved), taken.hold, (out,))
     return out
 

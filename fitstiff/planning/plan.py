@@ -279,7 +279,6 @@ def plan(diagnosis: Diagnosis, logs: Sequence[Log], *, limits: Limits | None = N
     programs: list[PlannedProgram] = []
     unplanned: list[dict] = []
     naive_log = max(logs, key=len)
-    _prefetch(rivals, found[:most], spent)
     for confusion in found[:most]:
         _plan_one(confusion, rivals, logs, limits, noise, naive_log, programs, unplanned, spent)
     waiting = [c for c in found if any(p.separates == c.separates for p in programs)]
@@ -290,7 +289,6 @@ def plan(diagnosis: Diagnosis, logs: Sequence[Log], *, limits: Limits | None = N
                               + " come first (it may be their shadow); diagnose them, then "
                                 "plan again"} for c in later]
     else:       # the logs settle every root question, or no program can: nothing to wait for
-        _prefetch(rivals, later[:most], spent)
         for confusion in later[:most]:
             _plan_one(confusion, rivals, logs, limits, noise, naive_log, programs, unplanned,
                       spent)
@@ -298,14 +296,6 @@ def plan(diagnosis: Diagnosis, logs: Sequence[Log], *, limits: Limits | None = N
                 noise=noise, diagnosis={"final_model": diagnosis.final_model,
                                         "files": list(diagnosis.files)},
                 seed=seed, timing_s={**spent, "total": time.perf_counter() - start})
-
-
-def _prefetch(rivals: Rivals, found: Sequence[Confusion], spent: dict) -> None:
-    """The rivals of ``found`` fitted ahead (:meth:`Rivals.prefetch`), their time to
-    ``spent``."""
-    t0 = time.perf_counter()
-    rivals.prefetch(found)
-    spent["rivals"] += time.perf_counter() - t0
 
 
 def _plan_one(confusion: Confusion, rivals: Rivals, logs: Sequence[Log], limits: Limits,

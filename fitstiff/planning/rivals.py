@@ -27,9 +27,7 @@ unit of its main parameter).
 from __future__ import annotations
 
 import dataclasses
-import os
 from collections.abc import Mapping, Sequence
-from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
@@ -51,8 +49,6 @@ KINDS = ("tie", "rival", "untestable", "undecided", "requested")
 #: two undecided candidates whose screen log p-values differ by at most this share are a pair
 #: the screen cannot order (heat exchange and a leak on closed chambers: 0.14 %)
 SCREEN_TIE = 0.01
-#: rival fits run side by side (:meth:`Rivals.prefetch`)
-_WORKERS = min(2, os.cpu_count() or 1)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -184,49 +180,15 @@ class Rivals:
         values, whatever the name it is asked for under)."""
         key = (spec, tuple(sorted(fix.items())))
         if key not in self._fits:
-            self._fits[key] = self._fit(key)
-        found = self._fits[key]
-        if isinstance(found, InputError):
-            raise found
-        return dataclasses.replace(found, name=name)
-
-    def _fit(self, key: tuple) -> Rival | InputError:
-        """The fit of ``key`` (spec, fixed values), or the error that says why it has none."""
-        spec, fix = key
-        result = fit(self.logs, spec, fix=dict(fix), seed=self.seed,
-                     **self.selection.keywords())
-        if not result.converged:
-            return InputError(None, f"the rival fit of {spec}",
-                              f"did not converge ({result.message})",
-                              "check the logs fit the diagnosis' final model, or name the "
-                              "rivals with --separate")
-        return Rival.from_fit("", result)
-
-    def fits_of(self, confusion: Confusion) -> list[tuple]:
-        """The keys (spec, fixed values) of the fits the rivals of ``confusion`` need."""
-        a, b = confusion.separates
-        if confusion.single:
-            spec, fix = self._absent(a)[:2]
-            return [(spec, tuple(sorted(fix.items())))]
-        return [(self.spec([a], drop=[b]), ()), (self.spec([b], drop=[a]), ())]
-
-    def prefetch(self, found: Sequence[Confusion], *, workers: int = _WORKERS) -> None:
-        """Fit the rivals of ``found`` ahead, ``workers`` fits at a time: each fit's
-        compilation (most of a rival's time) runs outside the interpreter's lock, so two
-        go side by side on two cores. A confusion whose effect is not a term of the model
-        is left to :meth:`single` to say so."""
-        keys = []
-        for confusion in found:
-            try:
-                keys += self.fits_of(confusion)
-            except InputError:
-                continue
-        todo = [k for k in dict.fromkeys(keys) if k not in self._fits]
-        if len(todo) < 2 or workers < 2:
-            return
-        with ThreadPoolExecutor(min(workers, len(todo))) as pool:
-            for key, rival in zip(todo, pool.map(self._fit, todo)):
-                self._fits[key] = rival
+            result = fit(self.logs, spec, fix=dict(fix), seed=self.seed,
+                         **self.selection.keywords())
+            if not result.converged:
+                raise InputError(None, f"the rival fit of {spec}",
+                                 f"did not converge ({result.message})",
+                                 "check the logs fit the diagnosis' final model, or name "
+                                 "the rivals with --separate")
+            self._fits[key] = Rival.from_fit(name, result)
+        return dataclasses.replace(self._fits[key], name=name)
 
     def pair(self, confusion: Confusion) -> tuple[Rival, Rival]:
         """Rivals ``a`` and ``b`` of a pair: the final model with each in place of both."""
@@ -239,15 +201,6 @@ class Rivals:
         (``absent``), the direction of a unit (SI) of the effect's main parameter over the
         rival's entries (every element of a vector), the parameter's name and its
         :class:`~fitstiff.physics.params.Param`."""
-        spec, fix, (param, names) = self._absent(effect)
-        rival = self.fitted(ABSENT, spec, fix=fix)
-        direction = np.array([1.0 if n in names else 0.0 for n in rival.par.names])
-        return rival, direction, names[0] if param.size is None else param.field, param
-
-    def _absent(self, effect: str):
-        """``(spec, fix, (param, names))`` of the final model with ``effect`` at its null:
-        its spec, the effect's parameters held (at their nulls; shape parameters, which have
-        none, where the fit starts them) and its main parameter with its flat names."""
         spec = self.spec([effect])
         model = build_model(spec)
         index = [i for i, t in enumerate(model.terms) if t.name == effect]
@@ -266,4 +219,8 @@ class Rivals:
         if main is None:
             raise InputError(None, f"effect '{effect}'", "has no parameter with a null value",
                              "separate it from another effect instead")
-        return spec, fix, main
+        rival = self.fitted(ABSENT, spec, fix=fix)
+        direction = np.array([1.0 if n in main[1] else 0.0 for n in rival.par.names])
+        param, names = main
+        return rival, direction, names[0] if param.size is None else param.field, param
+
