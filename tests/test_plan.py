@@ -336,11 +336,41 @@ def test_diagnose_plans_the_untestable_and_plan_and_report_follow(tmp_path):
 def test_a_rival_fitted_once_answers_to_the_name_it_is_asked_for(pause_free):
     from fitstiff.planning.rivals import Confusion, Rivals
 
-    rivals = Rivals(pause_free, "chamber+dahl+viscous")
+    rivals = Rivals(pause_free, "chamber+dahl+viscous", ["viscous", "stribeck"])
     a1, _ = rivals.pair(Confusion("rival", ("viscous", "stribeck"), ""))
-    again = rivals.fitted("the final model", rivals.spec(["viscous"], drop=["stribeck"]))
+    again = rivals.fitted("the final model", ["viscous"])
     assert a1.name == "viscous" and again.name == "the final model"
     assert again.model is a1.model                     # one fit, two names
+
+
+def test_rivals_are_masks_of_one_compiled_model_and_match_their_own_fits(pause_free):
+    """Every rival of a pair is the same compiled super-model with other effects switched
+    on. Each fits the logs as well as an ordinary fit of its own model; where the logs
+    determine the model (viscous friction beside Dahl's), its values agree with that fit's
+    within a hundredth of their standard errors and the information on them is the inverse
+    of its covariance. (Stribeck's law at one speed trades its ratio for Fc: equal costs,
+    other values.)"""
+    from fitstiff import fit
+    from fitstiff.planning.rivals import Confusion, Rivals
+
+    rivals = Rivals(pause_free, "chamber+dahl+viscous", ["viscous", "stribeck"])
+    a, b = rivals.pair(Confusion("rival", ("viscous", "stribeck"), ""))
+    assert a.par is b.par and type(a.model) is type(b.model)
+    for rival, spec in ((a, "chamber+dahl+viscous"), (b, "chamber+dahl+stribeck")):
+        own = fit(pause_free, spec)
+        assert own.converged and rival.cost == pytest.approx(own.cost, rel=1e-6)
+    own = fit(pause_free, "chamber+dahl+viscous")
+    names = list(a.par.names)
+    free = [n for n, f in zip(names, a.free) if f]
+    assert sorted(free) == sorted(own.problem.par.names)
+    order = [own.problem.par.names.index(n) for n in free]
+    se = np.sqrt(np.diag(np.asarray(own.covariance)[np.ix_(order, order)]))
+    values = own.problem.par.values(own.model)
+    for name, s in zip(free, se):
+        assert abs(a.values[names.index(name)] - float(values[name])) <= 0.01 * s, name
+    assert np.sqrt(np.diag(np.linalg.pinv(a.information))) == pytest.approx(se, rel=0.02)
+    with pytest.raises(InputError, match="not an effect the diagnosis can name"):
+        Rivals(pause_free, "chamber+dahl", ["lugre"])
 
 
 def test_diagnose_without_the_rigs_limits_writes_its_diagnosis_and_says_how_to_plan(

@@ -7,7 +7,7 @@ scored by the separation that survives the rivals' refits
 the allowed supply farthest from it, then the best shapes at every allowed supply and three
 start positions. The best program is kept, with the naive alternative of the same duration
 (the longest log replayed) scored the same way for comparison. Deterministic: a grid, no
-random draws (``seed`` seeds the rivals' fits only).
+random draws (``seed`` is recorded with the plan; nothing draws from it).
 """
 
 from __future__ import annotations
@@ -260,7 +260,7 @@ def plan(diagnosis: Diagnosis, logs: Sequence[Log], *, limits: Limits | None = N
         separate: one effect (against its absence) or two to separate, instead of the
             diagnosis' confusions.
         max_programs: the most programs (:data:`RUNS` per confusion).
-        seed: seeds the rivals' fits.
+        seed: recorded with the plan (the rivals' fits and the search are deterministic).
         selection: the diagnosis' data options
             (:class:`~fitstiff.inference.selection.Selection`), or its fields as keywords.
 
@@ -273,7 +273,8 @@ def plan(diagnosis: Diagnosis, logs: Sequence[Log], *, limits: Limits | None = N
     noise = noise_of(diagnosis, logs)
     found, later = deferred(confusions(diagnosis, separate=separate))
     most = max(1, max_programs // RUNS)
-    rivals = Rivals(logs, diagnosis.final_model, seed=seed,
+    rivals = Rivals(logs, diagnosis.final_model,
+                    [e for c in found + later for e in c.separates],
                     selection=Selection.given(selection, options))
     spent = {"rivals": 0.0, "search": 0.0}
     programs: list[PlannedProgram] = []

@@ -27,20 +27,26 @@ unit of its main parameter).
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
+from functools import cached_property
+from typing import NamedTuple
 
 import numpy as np
 
+from fitstiff.diagnosis._choice import full_fit
+from fitstiff.diagnosis._refit import maxwell_shape, refit_start
+from fitstiff.diagnosis.diagnose import ALPHA
 from fitstiff.diagnosis.result import Diagnosis
-from fitstiff.diagnosis.supermodel import spec_token
+from fitstiff.diagnosis.screen import screen
+from fitstiff.diagnosis.select import MIN_GAIN
+from fitstiff.diagnosis.supermodel import CANDIDATES, SuperProblem, spec_token
 from fitstiff.errors import InputError
-from fitstiff.inference.fitting import fit
 from fitstiff.inference.selection import Selection
 from fitstiff.io.log import Log
-from fitstiff.physics.model import build_model, parse_spec
-from fitstiff.physics.params import named_params
-from fitstiff.physics.terms import TERMS
-from fitstiff.planning.separation import Rival
+from fitstiff.physics.model import parse_spec
+from fitstiff.physics.terms import EFFECTS
+from fitstiff.planning.separation import RCOND, Rival
+from fitstiff.signal.noise import pooled_noise_floor
 
 __all__ = ["Confusion", "ABSENT", "KINDS", "confusions", "deferred", "Rivals"]
 
@@ -71,7 +77,7 @@ def confusions(diagnosis: Diagnosis, *, separate: Sequence[str] | None = None
     pair or single effect instead)."""
     if separate:
         names = list(dict.fromkeys(separate))
-        unknown = [n for n in names if n not in TERMS]
+        unknown = [n for n in names if n not in CANDIDATES]
         if unknown or not 1 <= len(names) <= 2:
             raise InputError(None, f"--separate {','.join(separate)}",
                              "names one or two effects" if not unknown else
@@ -154,73 +160,159 @@ def deferred(found: Sequence[Confusion]) -> tuple[list[Confusion], list[Confusio
 
 
 class Rivals:
-    """The rivals of confusions, fitted to the logs (one fit per model, cached).
+    """The rivals of confusions, fitted to the logs as masks of one compiled model.
+
+    The final model without the confused effects is the base; the confused effects are the
+    candidates of one :class:`~fitstiff.diagnosis.supermodel.SuperProblem` (the diagnosis'
+    own super-model), so every rival is a set of candidates switched on: one compilation of
+    its solves and Jacobian for all of them, a rival a solve. A rival is fitted as the
+    diagnosis fits a model it enlarges: the base fitted to all the data, then each of the
+    rival's effects added from its score screen's one-step start (:func:`refit_start`) and
+    solved with the model (:func:`full_fit`). What the logs know about its free parameters is
+    the Gauss-Newton information at the fit (the nuisances profiled out), from the residual
+    variance widened by the residuals' AR(1) factor, as a fit's covariance is.
 
     Args:
         logs: the diagnosis' logs.
         final_model: the diagnosis' final model spec (baseline plus accepted effects).
-        seed: seeds the rival fits.
+        effects: every effect a rival may add or drop (those of the confusions to plan);
+            each must be a candidate the diagnosis can name.
         selection: the diagnosis' data options (default: the defaults).
     """
 
-    def __init__(self, logs: Sequence[Log], final_model: str, *, seed: int = 0,
+    def __init__(self, logs: Sequence[Log], final_model: str, effects: Sequence[str], *,
                  selection: Selection | None = None):
         self.logs = list(logs)
+        self.tokens = final_model.replace(" ", "").split("+")
         self.terms = [name for name, _ in parse_spec(final_model)]
-        self.seed = seed
+        self.effects = tuple(dict.fromkeys(e for e in effects if e != ABSENT))
+        unknown = [e for e in self.effects if e not in CANDIDATES]
+        if unknown:
+            raise InputError(None, f"--separate {unknown[0]}",
+                             "is not an effect the diagnosis can name",
+                             f"separate effects of the library: {', '.join(EFFECTS)}")
         self.selection = selection or Selection()
-        self._fits: dict[tuple, Rival] = {}
+        self._base: _Fit | None = None
+        self._fits: dict[frozenset, Rival] = {}
 
-    def spec(self, effects: Sequence[str], *, drop: Sequence[str] = ()) -> str:
-        terms = [t for t in self.terms if t not in drop]
-        return "+".join(spec_token(t) for t in terms + [e for e in effects if e not in terms])
+    @property
+    def base_spec(self) -> str:
+        """The final model without the confused effects."""
+        return "+".join(t for t, name in zip(self.tokens, self.terms)
+                        if name not in self.effects)
 
-    def fitted(self, name: str, spec: str, *, fix: Mapping[str, float | None] = {}) -> Rival:
-        """The rival ``name``: ``spec`` fitted to the logs (one fit per spec and fixed
-        values, whatever the name it is asked for under)."""
-        key = (spec, tuple(sorted(fix.items())))
+    @cached_property
+    def sp(self) -> SuperProblem:
+        """The base and the confused effects as one compiled problem."""
+        return SuperProblem(self.logs, self.base_spec, self.effects, selection=self.selection)
+
+    def _fit_base(self) -> _Fit:
+        if self._base is None:
+            sp = self.sp
+            active = list(sp.baseline_terms)
+            theta, hold = sp.start()
+            theta, ok, _, _ = sp.solve(theta, hold, sp.model_mask(active), sp.nuisance_mask(),
+                                       sp.entry_weights())
+            hold = maxwell_shape(sp, theta, hold, active)
+            x = np.asarray(sp.physical(theta, hold, sp.model_mask(active)))
+            masks = [w > 0 for w in sp.problem.sample_weights]
+            noise, _ = pooled_noise_floor(sp.problem.logs, masks,
+                                          references=sp.forces(x, theta))
+            self._base = _Fit(theta, hold, tuple(active), bool(ok), tuple(noise))
+        return self._base
+
+    def fitted(self, name: str, effects: Sequence[str]) -> Rival:
+        """The rival ``name``: the base with ``effects`` (confused effects, in the order they
+        are added) fitted to the logs; one fit per set of effects, whatever the name it is
+        asked for under. Raises :class:`~fitstiff.errors.InputError` when a solve does not
+        converge."""
+        key = frozenset(effects)
         if key not in self._fits:
-            result = fit(self.logs, spec, fix=dict(fix), seed=self.seed,
-                         **self.selection.keywords())
-            if not result.converged:
-                raise InputError(None, f"the rival fit of {spec}",
-                                 f"did not converge ({result.message})",
+            sp, base = self.sp, self._fit_base()
+            weights = sp.entry_weights()
+            theta, hold, active, ok = base.theta, base.hold, list(base.active), base.converged
+            for effect in effects:
+                (s,), hold = screen(sp, theta, hold, active=active, candidates=[effect],
+                                    noise=base.noise, weights=weights, alpha=ALPHA,
+                                    min_gain=MIN_GAIN)
+                start = refit_start(sp, s, theta, hold, active, weights)
+                done = full_fit(sp, s, start, active, weights)
+                theta, hold, ok = done.theta, done.hold, ok and done.converged
+                active.append(effect)
+            if not ok:
+                spec = "+".join([self.base_spec, *(spec_token(e) for e in effects)])
+                raise InputError(None, f"the rival fit of {spec}", "did not converge",
                                  "check the logs fit the diagnosis' final model, or name "
                                  "the rivals with --separate")
-            self._fits[key] = Rival.from_fit(name, result)
+            self._fits[key] = _rival(name, sp, theta, hold, active)
         return dataclasses.replace(self._fits[key], name=name)
+
+    def _with(self, add: Sequence[str] = (), drop: Sequence[str] = ()) -> list[str]:
+        """The confused effects of the final model without ``drop``, then ``add``."""
+        kept = [t for t in self.terms if t in self.effects and t not in drop]
+        return kept + [e for e in add if e not in kept]
 
     def pair(self, confusion: Confusion) -> tuple[Rival, Rival]:
         """Rivals ``a`` and ``b`` of a pair: the final model with each in place of both."""
         a, b = confusion.separates
-        return (self.fitted(a, self.spec([a], drop=[b])),
-                self.fitted(b, self.spec([b], drop=[a])))
+        return (self.fitted(a, self._with([a], drop=[b])),
+                self.fitted(b, self._with([b], drop=[a])))
 
     def single(self, effect: str):
         """``(rival, direction, name, param)``: the final model with ``effect`` at its null
         (``absent``), the direction of a unit (SI) of the effect's main parameter over the
         rival's entries (every element of a vector), the parameter's name and its
         :class:`~fitstiff.physics.params.Param`."""
-        spec = self.spec([effect])
-        model = build_model(spec)
-        index = [i for i, t in enumerate(model.terms) if t.name == effect]
-        if not index:
+        if effect not in self.effects:
             raise InputError(None, f"--separate {effect}", "is not a term of this model",
                              "name an effect of the library")
-        fix: dict[str, float | None] = {}
-        main = None
-        for i, p, names in named_params(model):
-            if i != index[0]:
-                continue
-            for n in names:
-                fix[n] = p.null if p.null is not None else None
-            if p.null is not None and main is None:
-                main = (p, names)
-        if main is None:
+        rival = self.fitted(ABSENT, self._with(drop=[effect]))
+        par = self.sp.problem.par
+        tested = self.sp.elements(effect, tested=True)
+        if tested.size == 0:
             raise InputError(None, f"effect '{effect}'", "has no parameter with a null value",
                              "separate it from another effect instead")
-        rival = self.fitted(ABSENT, spec, fix=fix)
-        direction = np.array([1.0 if n in main[1] else 0.0 for n in rival.par.names])
-        param, names = main
-        return rival, direction, names[0] if param.size is None else param.field, param
+        param = par.entries[tested[0]].param
+        main = [k for k in tested if par.entries[k].param is param]
+        direction = np.zeros(len(par.names))
+        direction[main] = 1.0
+        name = par.names[main[0]] if param.size is None else param.field
+        return rival, direction, name, param
 
+
+class _Fit(NamedTuple):
+    """The base fitted to all the data, and the logs' noise floors read with its prediction."""
+
+    theta: np.ndarray
+    hold: np.ndarray
+    active: tuple[str, ...]
+    converged: bool
+    noise: tuple
+
+
+def _rival(name: str, sp: SuperProblem, theta, hold, active) -> Rival:
+    """A :class:`Rival` from a fit of the super-model with ``active`` terms: the super-model
+    with the other candidates at their nulls, and the information on its free entries (the
+    Gauss-Newton matrix over them and the nuisances, the nuisances profiled out, divided by
+    the residual variance widened by the AR(1) factor, as :func:`fitted_sizes` reads it)."""
+    par = sp.problem.par
+    free = sp.model_mask(active)
+    x = np.asarray(sp.physical(theta, hold, free), dtype=float)
+    r, jac = sp.jacobian(x, theta)
+    keep = sp.entry_weights() > 0
+    rf = r[keep]
+    model_cols = np.flatnonzero(free)
+    cols = np.concatenate([model_cols, sp.n_model + np.flatnonzero(sp.nuisance_mask())])
+    jf = jac[keep][:, cols]
+    finite = np.all(np.isfinite(jf), axis=0)
+    jf = np.where(finite, jf, 0.0)
+    dof = max(rf.size - int(finite.sum()), 1)
+    rho = float(np.clip(np.corrcoef(rf[:-1], rf[1:])[0, 1], 0.0, 0.99)) if rf.size > 2 else 0.0
+    h = jf.T @ jf / (float(rf @ rf) / dof * (1.0 + rho) / (1.0 - rho))
+    m = model_cols.size
+    info = h[:m, :m] - h[:m, m:] @ np.linalg.pinv(h[m:, m:], rcond=RCOND,
+                                                  hermitian=True) @ h[m:, :m]
+    info[~finite[:m], :] = 0.0
+    info[:, ~finite[:m]] = 0.0
+    model = par.physical_to_model(x, sp.problem.model)
+    return Rival(name, model, par, free, info, x, float(rf @ rf))

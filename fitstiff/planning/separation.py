@@ -40,13 +40,14 @@ from fitstiff.physics.model import Model
 from fitstiff.physics.params import Parameterization
 
 __all__ = ["Noise", "Rival", "Outputs", "outputs", "noncentrality", "detectable_size", "POWER",
-           "LEVEL", "sizes"]
+           "LEVEL", "RCOND", "sizes"]
 
 #: power and two-sided level at which :func:`detectable_size` states a size (the
 #: diagnosis' detectability uses the same)
 POWER = 0.8
 LEVEL = 0.05
-_RCOND = 1e-10
+#: relative cut-off of the pseudo-inverses of information matrices
+RCOND = 1e-10
 
 
 @dataclasses.dataclass(frozen=True)
@@ -77,8 +78,8 @@ class Rival:
         par: every parameter of the model (the fit's fixed ones too).
         free: per entry of ``par``: refitted on new data (free in the fit).
         information: ``P`` over the free entries, the information the logs hold on them
-            (SI): the pseudo-inverse of the fit's covariance, none where the logs determine
-            nothing.
+            (SI; :class:`~fitstiff.planning.rivals.Rivals` computes it), none where the logs
+            determine nothing.
         values: every entry's fitted value (SI).
         cost: the fit's whitened sum of squares on the logs (for comparing rivals there).
     """
@@ -90,22 +91,6 @@ class Rival:
     information: np.ndarray
     values: np.ndarray
     cost: float = float("nan")
-
-    @classmethod
-    def from_fit(cls, name: str, result) -> Rival:
-        """A rival from a :class:`~fitstiff.inference.fitting.FitResult`."""
-        par = Parameterization(result.model)
-        fitted = result.problem.par.names
-        free = np.array([n in fitted for n in par.names])
-        order = [fitted.index(n) for n in par.names if n in fitted]
-        cov = np.asarray(result.covariance, dtype=float)[np.ix_(order, order)]
-        ok = np.all(np.isfinite(cov), axis=0)
-        info = np.zeros(cov.shape)
-        if ok.any():
-            info[np.ix_(ok, ok)] = np.linalg.pinv(cov[np.ix_(ok, ok)], rcond=_RCOND,
-                                                  hermitian=True)
-        values = np.array(list(par.values(result.model).values()), dtype=float)
-        return cls(name, result.model, par, free, info, values, float(result.cost))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -165,7 +150,7 @@ def noncentrality(r: np.ndarray, jac: np.ndarray, nuisance: np.ndarray,
     a, prior = a[:, finite], prior[np.ix_(finite, finite)]
     h = a.T @ a + prior
     b = a.T @ r
-    d = np.linalg.pinv(h, rcond=_RCOND, hermitian=True) @ b
+    d = np.linalg.pinv(h, rcond=RCOND, hermitian=True) @ b
     left = float(r @ r - b @ d)
     return max(left, 0.0)
 
