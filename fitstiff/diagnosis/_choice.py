@@ -140,15 +140,9 @@ def full_fit(sp: SuperProblem, s: Score, start: Start, active, weights) -> FullF
     ``N log RSS + k log N`` over the ``N`` weighted residual entries, ``k`` the candidate's
     fitted parameters (the model's other parameters are common to every candidate); infinite
     when the solve did not converge."""
-    best = None
-    for one in (start, *start.also):
-        theta, ok, _, cost = sp.solve(one.theta, one.hold,
-                                      sp.model_mask(list(active) + [s.effect]),
-                                      sp.nuisance_mask(), weights)
-        key = (not ok, cost if math.isfinite(cost) else math.inf)
-        if best is None or key < best[0]:
-            best = (key, theta, ok, cost, one.hold)
-    _, theta, ok, cost, hold = best
+    theta, ok, _, cost, hold = sp.solve_best((start, *start.also),
+                                             sp.model_mask(list(active) + [s.effect]),
+                                             sp.nuisance_mask(), weights)
     n = float(np.count_nonzero(np.asarray(weights) > 0))
     k = sp.elements(s.effect, fitted=True).size
     bic = n * math.log(2.0 * cost) + k * math.log(n) if ok and cost > 0 else math.inf

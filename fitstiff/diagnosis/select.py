@@ -168,14 +168,8 @@ def held_out(sp: SuperProblem, folds: Sequence[Fold], starts: Sequence[FoldFit],
     def train(start: FoldFit, nuisances: np.ndarray, weights: np.ndarray):
         """``(theta, converged, steps, hold)``: the training solve from ``start`` and from each
         of its ``also``, the converged one of lowest training cost kept (steps: all)."""
-        best, steps = None, 0
-        for s in (start, *start.also):
-            th, ok, n, cost = sp.solve(s.theta, s.hold, free_model, nuisances, weights)
-            steps += int(n)
-            key = (not bool(ok), float(cost) if np.isfinite(cost) else np.inf)
-            if best is None or key < best[0]:
-                best = (key, th, bool(ok), s.hold)
-        _, th, ok, hold = best
+        th, ok, steps, _, hold = sp.solve_best((start, *start.also), free_model, nuisances,
+                                               weights)
         return th, ok, steps, hold
 
     def one(fold: Fold, start: FoldFit):

@@ -314,6 +314,22 @@ class SuperProblem:
         return self._light.solve(theta0, hold, free_model, free_nuisance, weights,
                                  max_steps=max_steps)
 
+    def solve_best(self, starts, free_model, free_nuisance, weights, *, max_steps=200):
+        """:meth:`solve` from each of ``starts`` (objects with ``theta`` and ``hold``); returns
+        ``(theta, converged, steps, cost, hold)`` of the converged solve of lowest cost (the
+        lowest cost when none converged), ``steps`` summed over all, ``hold`` its start's."""
+        best, steps = None, 0
+        for start in starts:
+            theta, ok, n, cost = self.solve(start.theta, start.hold, free_model,
+                                            free_nuisance, weights, max_steps=max_steps)
+            steps += int(n)
+            cost = float(cost) if np.isfinite(cost) else np.inf
+            key = (not bool(ok), cost)
+            if best is None or key < best[0]:
+                best = (key, theta, bool(ok), cost, start.hold)
+        _, theta, ok, cost, hold = best
+        return theta, ok, steps, cost, hold
+
     def _live_heavy(self, x, free_model=None) -> bool:
         """Whether a heavy candidate is in the model: free, or held away from its null."""
         if free_model is not None and np.any(free_model & self._heavy):
