@@ -24,6 +24,7 @@ from pathlib import Path
 
 _ONE = """
 import json, sys, time
+import fitstiff
 from fitstiff._testing.plan_loop import LOOP_LIMITS
 from fitstiff._testing.withheld import make_dataset
 from fitstiff.diagnosis.result import Diagnosis
@@ -35,7 +36,7 @@ limits = Limits.from_logs(logs, **LOOP_LIMITS)
 t = time.perf_counter()
 p = plan(d, logs, limits=limits)
 wall = time.perf_counter() - t
-print(json.dumps({"wall_s": wall, "timing_s": p.timing_s,
+print(json.dumps({"fitstiff": fitstiff.__file__, "wall_s": wall, "timing_s": p.timing_s,
                   "planned": [[list(x.separates), x.program, x.expected] for x in p.programs],
                   "unplanned": [[u["separates"], u["why"]] for u in p.unplanned]},
                  default=float))
@@ -68,12 +69,14 @@ def main() -> None:
         with tempfile.TemporaryDirectory() as cache:
             env = dict(os.environ, JAX_COMPILATION_CACHE_DIR=cache,
                        JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0")
-            run = subprocess.run([sys.executable, "-c", _ONE, dataset, str(stored)], env=env,
-                                 check=True, capture_output=True, text=True)
+            # run outside the working directory: its fitstiff would shadow PYTHONPATH's
+            run = subprocess.run([sys.executable, "-c", _ONE, dataset, str(stored.resolve())],
+                                 env=env, cwd=cache, check=True, capture_output=True,
+                                 text=True)
         result = json.loads(run.stdout.strip().splitlines()[-1])
         out["plans"][dataset] = result
         timing = {k: round(v, 1) for k, v in result["timing_s"].items()}
-        print(f"{dataset}: plan {result['wall_s']:.1f} s {timing}; planned "
+        print(f"{result['fitstiff']} {dataset}: plan {result['wall_s']:.1f} s {timing}; planned "
               f"{[p[0] for p in result['planned']]}", flush=True)
     if args.json:
         args.json.write_text(json.dumps(out, indent=1, default=float))

@@ -33,7 +33,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     parser.add_argument("--separate", metavar="A[,B]", default=None,
                         help="plan for these effects instead of the diagnosis' confusions: "
                              "one (against its absence) or two (against each other)")
-    parser.add_argument("--seed", type=int, default=0, help="recorded with the plan (planning is deterministic)")
+    parser.add_argument("--seed", type=int, default=0,
+                        help="recorded with the plan (planning is deterministic)")
     parser.add_argument("--json", action="store_true", help="print plan.json to stdout")
     parser.set_defaults(func=run)
     return parser

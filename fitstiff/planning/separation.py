@@ -75,7 +75,8 @@ class Rival:
     Attributes:
         name: what it stands for (an effect name, or ``"absent"``).
         model: the fitted model (SI values in its fields).
-        par: every parameter of the model (the fit's fixed ones too).
+        par: every parameter of the model (the held ones too: with the rivals of one plan
+            fitted as masks of one super-model, the other rivals' effects at their nulls).
         free: per entry of ``par``: refitted on new data (free in the fit).
         information: ``P`` over the free entries, the information the logs hold on them
             (SI; :class:`~fitstiff.planning.rivals.Rivals` computes it), none where the logs
