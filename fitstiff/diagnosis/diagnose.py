@@ -86,7 +86,7 @@ def diagnose(logs: Sequence[Log], *, baseline: str = DEFAULT_MODEL,
     names, skipped = candidate_names(baseline, candidates, logs=logs)
     sp = SuperProblem(logs, baseline, names, selection=Selection.given(selection, options))
     clock["setup"] = time.perf_counter()
-    fit = _baseline_fit(sp)
+    fit = baseline_fit(sp)
     st = _setting(sp, names, fit, alpha=alpha, min_shrink=min_shrink)
     base = _baseline(st, fit)
     search = base.search
@@ -128,10 +128,10 @@ class _FullFit(NamedTuple):
     converged: bool
 
 
-def _baseline_fit(sp: SuperProblem) -> _FullFit:
+def baseline_fit(sp: SuperProblem) -> _FullFit:
     """The baseline fitted to all the data. It screens, breaks ties and reports (the folds fit
     their own training parts), and its prediction lets the noise floors set aside the signal's
-    curvature (:func:`_setting`)."""
+    curvature (:func:`noise_floors`)."""
     active = list(sp.baseline_terms)
     theta, hold = sp.start()
     theta, converged, _, _ = sp.solve(theta, hold, sp.model_mask(active), sp.nuisance_mask(),
@@ -146,15 +146,19 @@ def _setting(sp: SuperProblem, names, fit: _FullFit, *, alpha: float,
     smaller per lag (:func:`~fitstiff.signal.noise.noise_floor` with a ``reference``): the
     differences of a fast log's pre-sliding curves are not noise; a missing effect's slow
     misfit cancels in them."""
-    problem = sp.problem
-    folds = folds_for(sp)
-    masks = [w > 0 for w in problem.sample_weights]
+    masks = [w > 0 for w in sp.problem.sample_weights]
+    noise, noise_pooled = noise_floors(sp, fit)
+    return Setting(sp=sp, folds=folds_for(sp), names=names, noise=noise,
+                   noise_pooled=noise_pooled, masks=masks, weights=sp.entry_weights(),
+                   alpha=alpha, min_shrink=min_shrink, spent=Counter())
+
+
+def noise_floors(sp: SuperProblem, fit: _FullFit):
+    """Each log's noise floor and the pooled one (:func:`pooled_noise_floor`), read with the
+    baseline's full-data prediction as the reference (see :func:`_setting`)."""
+    masks = [w > 0 for w in sp.problem.sample_weights]
     x = np.asarray(sp.physical(fit.theta, fit.hold, sp.model_mask(sp.baseline_terms)))
-    noise, noise_pooled = pooled_noise_floor(problem.logs, masks,
-                                             references=sp.forces(x, fit.theta))
-    return Setting(sp=sp, folds=folds, names=names, noise=noise, noise_pooled=noise_pooled,
-                   masks=masks, weights=sp.entry_weights(), alpha=alpha,
-                   min_shrink=min_shrink, spent=Counter())
+    return pooled_noise_floor(sp.problem.logs, masks, references=sp.forces(x, fit.theta))
 
 
 class _Baseline(NamedTuple):

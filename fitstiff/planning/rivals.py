@@ -34,8 +34,8 @@ from typing import NamedTuple
 import numpy as np
 
 from fitstiff.diagnosis._choice import full_fit
-from fitstiff.diagnosis._refit import maxwell_shape, refit_start
-from fitstiff.diagnosis.diagnose import ALPHA
+from fitstiff.diagnosis._refit import refit_start
+from fitstiff.diagnosis.diagnose import ALPHA, baseline_fit, noise_floors
 from fitstiff.diagnosis.result import Diagnosis
 from fitstiff.diagnosis.screen import screen
 from fitstiff.diagnosis.select import MIN_GAIN
@@ -46,7 +46,6 @@ from fitstiff.io.log import Log
 from fitstiff.physics.model import parse_spec
 from fitstiff.physics.terms import EFFECTS
 from fitstiff.planning.separation import RCOND, Rival
-from fitstiff.signal.noise import pooled_noise_floor
 
 __all__ = ["Confusion", "ABSENT", "KINDS", "confusions", "deferred", "Rivals"]
 
@@ -207,18 +206,13 @@ class Rivals:
         return SuperProblem(self.logs, self.base_spec, self.effects, selection=self.selection)
 
     def _fit_base(self) -> _Fit:
+        """The base fitted to all the data, and the noise floors read with its prediction,
+        as the diagnosis reads them (once)."""
         if self._base is None:
-            sp = self.sp
-            active = list(sp.baseline_terms)
-            theta, hold = sp.start()
-            theta, ok, _, _ = sp.solve(theta, hold, sp.model_mask(active), sp.nuisance_mask(),
-                                       sp.entry_weights())
-            hold = maxwell_shape(sp, theta, hold, active)
-            x = np.asarray(sp.physical(theta, hold, sp.model_mask(active)))
-            masks = [w > 0 for w in sp.problem.sample_weights]
-            noise, _ = pooled_noise_floor(sp.problem.logs, masks,
-                                          references=sp.forces(x, theta))
-            self._base = _Fit(theta, hold, tuple(active), bool(ok), tuple(noise))
+            fit = baseline_fit(self.sp)
+            noise, _ = noise_floors(self.sp, fit)
+            self._base = _Fit(fit.theta, fit.hold, self.sp.baseline_terms, bool(fit.converged),
+                              tuple(noise))
         return self._base
 
     def fitted(self, name: str, effects: Sequence[str]) -> Rival:
