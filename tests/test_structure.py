@@ -5,6 +5,7 @@ times, pressures and reversals are real), so each test knows what the residual f
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 
@@ -108,13 +109,28 @@ def test_no_gap_above_the_noise_floor_describes_nothing(logs):
 
 def test_a_period_longer_than_half_a_logs_travel_is_a_smooth_curve(logs):
     # a 3 mm period over logs of 2 mm travel: not claimed as periodic; the logs lie apart
-    # along the stroke, so a curve of the position is as well a shape per log
+    # along the stroke, so a curve of the position is as well a shape per log, and of the
+    # pressure (one supply pressure each)
     logs_, segs = logs
     r = [e + 0.3 * np.sin(2 * np.pi * log.position() / 3e-3)
          for log, e in zip(logs_, _noise(logs_, 7))]
     first = _first(_describe(logs_, segs, r))
     assert first is not None and first.variable == "position" and first.form == "smooth"
-    assert first.confounded_with == ("log",) and "cannot tell it from log" in first.suggestion
+    assert first.confounded_with == ("log", "pressure")
+    assert "cannot tell it from log, pressure" in first.suggestion
+    assert "each log has its own pressure" in first.suggestion
+
+
+def test_logs_at_one_pressure_leave_the_pressure_out_of_a_per_log_curve(logs):
+    # the same curve with every log at one supply pressure: the logs still lie apart along
+    # the stroke (log is a rival) but the pressure does not tell them apart
+    logs_, segs = logs
+    segs = [dataclasses.replace(seg, pressure_level=4e5) for seg in segs]
+    r = [e + 0.3 * np.sin(2 * np.pi * log.position() / 3e-3)
+         for log, e in zip(logs_, _noise(logs_, 7))]
+    first = _first(_describe(logs_, segs, r))
+    assert first is not None and first.variable == "position"
+    assert first.confounded_with == ("log",)
 
 
 def test_structure_round_trips_through_diagnosis_json(logs):

@@ -14,8 +14,8 @@ import numpy as np
 from fitstiff.io.log import Log
 from fitstiff.segments.segmentation import Segmentation
 
-__all__ = ["VARIABLES", "UNITS", "Candidate", "candidates", "disjoint", "periods",
-           "structure_variables"]
+__all__ = ["VARIABLES", "UNITS", "Candidate", "candidates", "disjoint", "one_level_per_log",
+           "periods", "structure_variables"]
 
 #: what a residual can follow, in the order ties are broken (physical variables first)
 VARIABLES = ("position", "time", "pressure", "velocity", "since_reversal", "direction",
@@ -171,3 +171,19 @@ def disjoint(v: np.ndarray, log_id: np.ndarray, counted: np.ndarray) -> bool:
     ranges = sorted((float(v[m].min()), float(v[m].max()))
                     for k in np.unique(log_id) if (m := (log_id == k) & counted).any())
     return len(ranges) >= 2 and all(a[1] < b[0] for a, b in zip(ranges, ranges[1:]))
+
+
+def one_level_per_log(v: np.ndarray, log_id: np.ndarray, counted: np.ndarray) -> bool:
+    """Whether ``v`` is one value per log and no two logs share it (two logs or more, such
+    as one supply pressure each): anything that differs between the logs is then as well a
+    function of ``v``."""
+    levels = []
+    for k in np.unique(log_id):
+        m = (log_id == k) & counted
+        if not m.any():
+            continue
+        values = np.unique(np.round(v[m], 9))
+        if values.size != 1:
+            return False
+        levels.append(float(values[0]))
+    return len(levels) >= 2 and np.unique(levels).size == len(levels)

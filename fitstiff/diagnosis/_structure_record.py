@@ -172,12 +172,13 @@ class Trial:
 
 
 def record(x: Trial, relative: bool, noise: float, *, accepted: bool, round_: int,
-           t_needed: float, rivals: tuple[str, ...] = (), apart: bool = False,
+           t_needed: float, rivals: tuple[str, ...] = (), apart: tuple[str, ...] = (),
            why: str = "", library: Mapping[str, str] = {}) -> Structure:
     """The :class:`Structure` of a tried description: ``relative``, whether the positions are
     relative to the start (a start position not known); ``rivals``, the variables it is
-    confounded with; ``apart``, whether no two logs share a range of its variable (then
-    ``log`` is a rival too); ``library``, the library effects tried and not accepted, with
+    confounded with; ``apart``, where no two logs share a range of its variable, ``log`` and
+    the variables with one level per log (a supply pressure each): rivals too, since the
+    curve is as well a shape of each log's own; ``library``, the library effects tried and not accepted, with
     why (:data:`LOOKALIKES`)."""
     c = x.cand
     unit = UNITS[c.variable]
@@ -198,11 +199,16 @@ def record(x: Trial, relative: bool, noise: float, *, accepted: bool, round_: in
     if rivals:
         suggestion += (f". The logs cannot tell it from {', '.join(rivals)} (the same "
                        "prediction): record data that vary them separately")
-    if apart and "log" not in rivals:
-        rivals += ("log",)
-        suggestion += (f". The logs cannot tell it from log: no two logs share a range of "
-                       f"the {c.variable.replace('_', ' ')}, so the curve is as well a shape "
-                       "of each log's own; record two logs over one range of it")
+    alike = tuple(v for v in apart if v not in rivals)
+    if alike:
+        rivals += alike
+        per_log = [v.replace("_", " ") for v in alike if v != "log"]
+        suggestion += (f". The logs cannot tell it from {', '.join(alike)}: no two logs share a "
+                       f"range of the {c.variable.replace('_', ' ')}, so the curve is as well "
+                       "a shape of each log's own"
+                       + (f" (and each log has its own {', '.join(per_log)})" if per_log else "")
+                       + "; record two logs over one range of it"
+                       + (f" at one {', '.join(per_log)}" if per_log else ""))
     for effect in LOOKALIKES.get((c.variable, c.signed), ()):
         if effect in library:
             suggestion += (f". {effect} has a shape like it; the library tried it and did "

@@ -31,8 +31,9 @@ prediction is taken off the residual and the rest is described again, up to
 ``MAX_ACCEPT`` descriptions. Descriptions of other variables that do about as well (a tie,
 or passing with at least ``RIVAL_GAIN`` of the winner's held-out gain) and predict the same
 thing (correlation above ``CONFOUNDED``) are its ``confounded_with``: the logs cannot tell
-those variables apart; so is ``log`` for a curve (not a period) of a
-variable whose ranges in the logs do not overlap (a curve of it is as well a shape per log).
+those variables apart; so are ``log``, and any variable with one level per log (a supply
+pressure each), for a curve (not a period) of a variable whose ranges in the logs do not
+overlap (a curve of it is as well a shape per log).
 
 The rates are measured in the withheld-effect benchmark (``benchmarks/withheld.py``: nulls,
 datasets whose in-library effect was accepted, and the out-of-library family).
@@ -54,7 +55,7 @@ import numpy as np
 
 from fitstiff.diagnosis._structure_basis import Design, fit_predict
 from fitstiff.diagnosis._structure_forms import (VARIABLES, Candidate, candidates, disjoint,
-                                                 structure_variables)
+                                                 one_level_per_log, structure_variables)
 from fitstiff.diagnosis._structure_record import LOOKALIKES, Structure, Trial, record, shown
 from fitstiff.inference.comparison import TIE
 from fitstiff.io.log import Log
@@ -256,8 +257,14 @@ def _round(data: _Samples, designs: Sequence[Design], r: np.ndarray, before: flo
                    and (x.after - best_after <= band or any(x is y for y in passing)
                         and x.before - x.after >= RIVAL_GAIN * gain)
                    and _corr(x.pred, chosen.pred, data.weight) > CONFOUNDED)
-    apart = (chosen.cand.form in ("linear", "smooth", "curved")
-             and disjoint(chosen.cand.values, data.log_id, data.counted))
+    apart: tuple[str, ...] = ()
+    if (chosen.cand.form in ("linear", "smooth", "curved")
+            and disjoint(chosen.cand.values, data.log_id, data.counted)):
+        # a curve per log is as well a shape of each log's own, and of any variable that
+        # has one level per log (a supply pressure each)
+        apart = ("log", *dict.fromkeys(
+            c.variable for c in data.candidates if c.variable not in ("log", chosen.cand.variable)
+            and one_level_per_log(c.values, data.log_id, data.counted)))
     structure = record(chosen, data.relative, rule.noise, accepted=True, round_=round_,
                        t_needed=t_needed, rivals=rivals, apart=apart, library=rule.library)
     return _Outcome(Described(structure, chosen.shown, chosen.cand.sign, r, chosen.pred), [])
