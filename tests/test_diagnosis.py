@@ -4,6 +4,7 @@ bad input, and withheld effects found (or nothing found on a null)."""
 from __future__ import annotations
 
 import json
+import math
 import re
 import subprocess
 import sys
@@ -468,6 +469,32 @@ def test_a_detectable_size_beyond_the_parameters_range_is_not_testable():
     near = detectability(SimpleNamespace(**{**vars(score), "detectable": 0.5}))
     assert near == {"testable": True, "parameter": "stribeck_ratio", "size": 0.5, "unit": "-",
                     "power": 0.8}
+
+
+def test_the_detectable_total_of_like_elements_is_where_the_logs_see_it_best():
+    """Issue 31: Maxwell-slip elements were accepted below their own reported detectable
+    size, which was read along the uniform split of the total only. The reported total is
+    the smallest over the splits: one element alone where the elements are seen apart, the
+    same as the uniform split where they are seen alike; the held-out rule's size bounds it
+    from below."""
+    from fitstiff.diagnosis.screen import detectable_total
+
+    z = 2.8
+    apart = np.diag([1.0, 4.0, 9.0, 16.0])
+    never = lambda d: 0.0                          # noqa: E731 - the rule's size, negligible
+    uniform, best = detectable_total(apart, z, np.ones(4), never)
+    assert uniform == pytest.approx(z * 4 / math.sqrt(30.0))
+    assert best == pytest.approx(z / 4.0)          # all on the most visible element
+    alike = np.ones((4, 4))
+    uniform, best = detectable_total(alike, z, np.ones(4), never)
+    assert best == pytest.approx(uniform) and best == pytest.approx(z)
+    # one parameter: as before, the larger of the score test's and the rule's size
+    assert detectable_total(np.array([[4.0]]), z, np.ones(1), lambda d: 3.0) == (
+        pytest.approx(z / 2), 3.0)
+    # a shape entry beside the elements (direction 0) is not one of them
+    mixed = np.diag([1.0, 100.0, 4.0])
+    _, best = detectable_total(mixed, z, np.array([1.0, 0.0, 1.0]), never)
+    assert best == pytest.approx(z / 2.0)
 
 
 @pytest.fixture(scope="module")

@@ -178,8 +178,8 @@ def record(x: Trial, relative: bool, noise: float, *, accepted: bool, round_: in
     relative to the start (a start position not known); ``rivals``, the variables it is
     confounded with; ``apart``, where no two logs share a range of its variable, ``log`` and
     the variables with one level per log (a supply pressure each): rivals too, since the
-    curve is as well a shape of each log's own; ``library``, the library effects tried and not accepted, with
-    why (:data:`LOOKALIKES`)."""
+    curve is as well a shape of each log's own; ``library``, the library effects tried and
+    not accepted, with why (:data:`LOOKALIKES`)."""
     c = x.cand
     unit = UNITS[c.variable]
     size = math.sqrt(float(np.mean(x.full**2)))
