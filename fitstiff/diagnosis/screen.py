@@ -246,9 +246,14 @@ def detectable_total(info: np.ndarray, z: float, direction: np.ndarray, accepted
 
     ``info``: the information of the tested entries over the residual variance. The
     information a split of one total carries is a convex form of the split, largest at a
-    corner of the simplex: one element alone. Along the uniform split only, accepted totals
-    fell below the size reported (withheld ``single/maxwell_slip``: 4 of 5 accepted at
-    0.4-0.7 times it)."""
+    corner of the simplex: one element alone.
+
+    Both sizes are first-order, at the baseline's fit. Where an effect's refit moves the
+    baseline far (Maxwell-slip elements that take Dahl's friction over) it can do better
+    than that: on the withheld ``single/maxwell_slip`` sets the elements are seen nearly
+    alike (correlations 0.94-0.999), the corners lower the size 5-10 % (to 19-24 N/mm), the
+    held-out rule's size sets it (the score test's is 3.5 N/mm on ``/0``), and four of five
+    are accepted at totals of 0.4-0.7 times it."""
     def along(d: np.ndarray) -> tuple[float, float]:
         info_d = float(d @ info @ d)
         by = z / math.sqrt(info_d) * d.sum() if info_d > 0 else math.inf
