@@ -497,6 +497,38 @@ def test_the_detectable_total_of_like_elements_is_where_the_logs_see_it_best():
     assert best == pytest.approx(z / 2.0)
 
 
+def test_an_effect_the_logs_test_only_between_them_must_hold_on_every_left_out_log():
+    """Friction that grows with the pressure, on logs at one pressure each, is within every
+    log that log's friction level: only the logs' differences test it. On out-of-library
+    sets whose friction level differs between the logs for another reason it was accepted
+    on the pooled held-out RMS while one left-out log got worse (friction drifting over each
+    log: 0.159 -> 0.168 N; a saturating pressure law: 0.344 -> 0.469 N). Such an effect must
+    not predict any left-out log worse by 5 % of the floor or more."""
+    from types import SimpleNamespace
+
+    from fitstiff.diagnosis._refit import worse_log
+    from fitstiff.diagnosis.screen import _between_logs
+
+    rng = np.random.default_rng(3)
+    row_log = np.repeat([0, 1, 2], 50)
+    level = rng.normal(size=150)
+    base = np.column_stack([level, rng.normal(size=150)])
+    per_log = np.array([-1.0, 0.2, 1.3])[row_log] * level      # one level per log
+    assert _between_logs(per_log, base, row_log)
+    assert not _between_logs(per_log + 0.1 * rng.normal(size=150), base, row_log)
+    assert not _between_logs(per_log * (row_log == 0), base, row_log)   # one log alone
+
+    sp = SimpleNamespace(problem=SimpleNamespace(logs=[SimpleNamespace(name=n)
+                                                       for n in ("a", "b", "c")]))
+    current = SimpleNamespace(rms_per_log_N=(0.277, 0.159, 0.225))
+    drift = SimpleNamespace(rms_per_log_N=(0.208, 0.168, 0.205))
+    between = SimpleNamespace(between_logs=True)
+    why = worse_log(sp, between, drift, current, 0.141)
+    assert why is not None and "log b worse (0.159 -> 0.168 N)" in why
+    assert worse_log(sp, between, drift, current, 0.2) is None      # within 5 % of 0.2 N
+    assert worse_log(sp, SimpleNamespace(between_logs=False), drift, current, 0.141) is None
+
+
 @pytest.fixture(scope="module")
 def junction_logs():
     from fitstiff._testing.independent import junction_dwell

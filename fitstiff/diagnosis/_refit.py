@@ -22,8 +22,8 @@ from fitstiff.diagnosis.supermodel import SuperProblem
 from fitstiff.physics.params import to_display
 from fitstiff.physics.terms import FrictionBase, MaxwellSlip
 
-__all__ = ["Start", "Tried", "FoldStarts", "judge", "on_bound", "refit_start", "maxwell_shape",
-           "fold_fits", "at_null"]
+__all__ = ["Start", "Tried", "FoldStarts", "judge", "on_bound", "worse_log", "refit_start",
+           "maxwell_shape", "fold_fits", "at_null"]
 
 _MAXWELL_SHAPE = (0.25, 0.5, 1.0, 2.0)   # slip displacements, multiples of breakaway / slope
 _PAPER_BREAKAWAY, _PAPER_SLOPE = 18.0, 40e3     # N, N/m: the paper's seal
@@ -73,8 +73,10 @@ def judge(sp: SuperProblem, s: Score, ho: HeldOut, starts, *, current: HeldOut,
     shrink = (current.rms_N - ho.rms_N) / gap if gap > 0 else float("nan")
     gain = current.rms_N - ho.rms_N
     bound = on_bound(sp, ho, effects or [s.effect])
+    worse = worse_log(sp, s, ho, current, noise)
     passes = (ho.converged and gain >= MIN_GAIN * noise
-              and math.isfinite(shrink) and shrink >= min_shrink and bound is None)
+              and math.isfinite(shrink) and shrink >= min_shrink and bound is None
+              and worse is None)
     why = ("" if passes else "a refit did not converge" if not ho.converged
            else "held-out RMS did not fall" if gain <= 0
            else f"lowers the held-out RMS by only {gain:.2g} N (needs "
@@ -82,8 +84,26 @@ def judge(sp: SuperProblem, s: Score, ho: HeldOut, starts, *, current: HeldOut,
            if gain < MIN_GAIN * noise
            else f"removes only {shrink:.0%} of the gap above the noise "
                 f"(needs {min_shrink:.0%})" if shrink < min_shrink
-           else bound)
+           else bound if bound is not None else worse)
     return Tried(s, ho, shrink, passes, why, tuple(starts))
+
+
+def worse_log(sp: SuperProblem, s: Score, ho: HeldOut, current: HeldOut,
+              noise: float) -> str | None:
+    """Why an effect the logs test only against each other (``s.between_logs``: friction
+    growing with the pressure, on logs at one pressure each) cannot be accepted: a left-out
+    log it predicts worse than the current model, by at least ``MIN_GAIN`` of the noise
+    floor; or None. Its evidence is the logs' differences alone, so it must hold on each
+    log left out, not on their pooled RMS only: a level that differs between three logs for
+    another reason (a ripple, friction drifting over a log) lines up with their pressures
+    one time in three, and one log's large gain then hides another's loss."""
+    if not s.between_logs or len(ho.rms_per_log_N) != len(current.rms_per_log_N):
+        return None
+    for i, (before, after) in enumerate(zip(current.rms_per_log_N, ho.rms_per_log_N)):
+        if after - before >= MIN_GAIN * noise:
+            return (f"the logs test it only against each other, and held out it predicts "
+                    f"log {sp.problem.logs[i].name} worse ({before:.3g} -> {after:.3g} N)")
+    return None
 
 
 def on_bound(sp: SuperProblem, ho: HeldOut, effects: Sequence[str]) -> str | None:

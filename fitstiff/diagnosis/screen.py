@@ -52,6 +52,9 @@ SHAPE_GRIDS: dict[str, dict[str, tuple[float, ...]]] = {
     "dwell_stiction": {"dwell_tau": (0.3, 3.0), "dwell_decay": (0.05e-3, 0.2e-3)},
 }
 _COLLINEAR = 1e-6    # share of a candidate column left after projection: not testable
+#: share of a candidate's column left within a log after projection on the current model's
+#: columns there, below which that log cannot test it alone (:func:`_between_logs`)
+_BETWEEN = 1e-6
 #: correlation of two candidates' projected columns above which the screen cannot order them
 COLLINEAR_TIE = 0.999
 
@@ -85,6 +88,11 @@ class Score:
     #: leaves the pre-sliding slope it softened)
     base_step: Mapping[int, float] = dataclasses.field(default_factory=dict, repr=False,
                                                       compare=False)
+    #: whether the logs test it only against each other: within every log alone its main
+    #: column is one of the current model's (pressure-dependent friction with one pressure
+    #: per log is each log's own friction level), so its evidence is the differences
+    #: between the logs (:func:`_between_logs`)
+    between_logs: bool = False
 
 
 def _ar1_filter(a: np.ndarray, series, rhos) -> np.ndarray:
@@ -153,6 +161,10 @@ def screen(sp: SuperProblem, theta: np.ndarray, hold: np.ndarray, *, active: Seq
         if series.channel == "force":
             force[series.span] = True
     force = force[keep]
+    row_log = np.zeros(w.size, dtype=int)
+    for series in sp.series:
+        row_log[series.span] = series.log
+    row_log = row_log[keep]
     ju = (jac * w[:, None])[keep]
     q_raw = _orthonormal(ju[:, base_cols])
     accept = _AcceptSize(q_raw, force, ((1.0 + min_gain) ** 2 - 1.0) * s2)
@@ -182,7 +194,7 @@ def screen(sp: SuperProblem, theta: np.ndarray, hold: np.ndarray, *, active: Seq
             gf = _ar1_filter(g_cols * w[:, None], sp.series, rhos)[keep]
             score = _score(effect, sp, tested, gf, q, r_perp, s2, alpha / m, len(points),
                            accept=accept, unfiltered=(g_cols * w[:, None])[keep],
-                           base=(base, base_cols))
+                           base=(base, base_cols), row_log=row_log)
             score = dataclasses.replace(score, shape=point)
             if best is None or score.log_p < best.log_p:
                 best = score
@@ -267,6 +279,25 @@ def detectable_total(info: np.ndarray, z: float, direction: np.ndarray, accepted
     return by_score, detectable
 
 
+def _between_logs(column: np.ndarray, base: np.ndarray, row_log: np.ndarray) -> bool:
+    """Whether, within every log alone, ``column`` (a candidate's main column, whitened) lies
+    in the span of ``base`` (the current model's columns) restricted to that log's rows:
+    then no log tests the candidate on its own, only the differences between two logs or
+    more do (friction that grows with the pressure, on logs at one pressure each: within a
+    log it is that log's friction level)."""
+    logs = [k for k in np.unique(row_log) if np.any(column[row_log == k])]
+    if len(logs) < 2:
+        return False
+    for k in logs:
+        rows = row_log == k
+        c, b = column[rows], base[rows]
+        b = b[:, np.any(b != 0, axis=0)]
+        left = c - b @ np.linalg.lstsq(b, c, rcond=None)[0] if b.shape[1] else c
+        if float(left @ left) >= _BETWEEN * float(c @ c):
+            return False
+    return True
+
+
 def chi2_logsf(x: float, dof: int) -> float:
     """``log P(chi2_dof > x)``, finite far in the tail. ``scipy.stats.chi2.logsf`` takes the
     log of the survival function, which underflows to ``-inf`` beyond ``x`` of about 1 500
@@ -316,7 +347,7 @@ class _AcceptSize:
 def _score(effect: str, sp: SuperProblem, tested: np.ndarray, g_cols: np.ndarray,
            q: np.ndarray, r_perp: np.ndarray, s2: float, alpha: float,
            n_grid: int, *, accept: _AcceptSize, unfiltered: np.ndarray,
-           base: tuple[np.ndarray, np.ndarray]) -> Score:
+           base: tuple[np.ndarray, np.ndarray], row_log: np.ndarray) -> Score:
     owners = [sp.owners[k] for k in tested]
     main = owners[0].name.rsplit("_", 1)[0] if owners[0].name.endswith("_1") else owners[0].name
     direction_vec = np.array([1.0 if (o.name == main or o.name.rsplit("_", 1)[0] == main)
@@ -366,4 +397,5 @@ def _score(effect: str, sp: SuperProblem, tested: np.ndarray, g_cols: np.ndarray
     shift = np.linalg.lstsq(b, -(g_cols @ taken), rcond=None)[0] if b.shape[1] else []
     return Score(effect, statistic, dof, p, log_p, sign, True, None, detectable, main, param,
                  one_step, {}, column / np.linalg.norm(column),
-                 {int(k): float(v) for k, v in zip(cols, shift)})
+                 {int(k): float(v) for k, v in zip(cols, shift)},
+                 _between_logs(g_cols @ direction_vec, b, row_log))

@@ -11,9 +11,11 @@ it).
 A candidate is **accepted** when (1) its score p-value, Bonferroni-corrected over the
 candidates, is below ``alpha``; (2) every refit converged; (3) its held-out RMS is below the
 current model's by at least 5 % of the noise floor (``MIN_GAIN``: the floor itself is known
-to a few per cent); and (4) it removes at least ``min_shrink`` of the gap above the noise floor,
-``shrink = (before - after) / (before - noise)``. Among the candidates that pass, the one with
-the lowest held-out RMS is accepted; the screen is then repeated on the enlarged model, until
+to a few per cent); (4) it removes at least ``min_shrink`` of the gap above the noise floor,
+``shrink = (before - after) / (before - noise)``; and (5) an effect the logs test only against
+each other (``Score.between_logs``) predicts no left-out log worse by ``MIN_GAIN`` of the noise
+floor or more (:func:`~fitstiff.diagnosis._refit.worse_log`). Among the candidates that pass,
+the one with the lowest held-out RMS is accepted; the screen is then repeated on the enlarged model, until
 none passes. Then each accepted effect is judged as if it had been added last (the final
 model without it against with it, by conditions (3) and (4)) and dropped if it fails: a later
 effect can leave an earlier one nothing of its own (:func:`~fitstiff.diagnosis.prune.prune`).
