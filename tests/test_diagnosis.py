@@ -507,16 +507,17 @@ def test_an_effect_the_logs_test_only_between_them_must_hold_on_every_left_out_l
     from types import SimpleNamespace
 
     from fitstiff.diagnosis._refit import worse_log
-    from fitstiff.diagnosis.screen import _between_logs
+    from fitstiff.diagnosis.screen import _between_logs, _orthonormal
 
     rng = np.random.default_rng(3)
     row_log = np.repeat([0, 1, 2], 50)
     level = rng.normal(size=150)
     base = np.column_stack([level, rng.normal(size=150)])
+    logs = {k: (row_log == k, _orthonormal(base[row_log == k])) for k in range(3)}
     per_log = np.array([-1.0, 0.2, 1.3])[row_log] * level      # one level per log
-    assert _between_logs(per_log, base, row_log)
-    assert not _between_logs(per_log + 0.1 * rng.normal(size=150), base, row_log)
-    assert not _between_logs(per_log * (row_log == 0), base, row_log)   # one log alone
+    assert _between_logs(per_log, logs)
+    assert not _between_logs(per_log + 0.1 * rng.normal(size=150), logs)
+    assert not _between_logs(per_log * (row_log == 0), logs)   # one log alone
 
     sp = SimpleNamespace(problem=SimpleNamespace(logs=[SimpleNamespace(name=n)
                                                        for n in ("a", "b", "c")]))

@@ -165,6 +165,9 @@ def screen(sp: SuperProblem, theta: np.ndarray, hold: np.ndarray, *, active: Seq
     for series in sp.series:
         row_log[series.span] = series.log
     row_log = row_log[keep]
+    # the current model's columns within each log, orthonormal, once for every candidate
+    per_log = {int(k): (row_log == k, _orthonormal(base[row_log == k]))
+               for k in np.unique(row_log)}
     ju = (jac * w[:, None])[keep]
     q_raw = _orthonormal(ju[:, base_cols])
     accept = _AcceptSize(q_raw, force, ((1.0 + min_gain) ** 2 - 1.0) * s2)
@@ -194,7 +197,7 @@ def screen(sp: SuperProblem, theta: np.ndarray, hold: np.ndarray, *, active: Seq
             gf = _ar1_filter(g_cols * w[:, None], sp.series, rhos)[keep]
             score = _score(effect, sp, tested, gf, q, r_perp, s2, alpha / m, len(points),
                            accept=accept, unfiltered=(g_cols * w[:, None])[keep],
-                           base=(base, base_cols), row_log=row_log)
+                           base=(base, base_cols), per_log=per_log)
             score = dataclasses.replace(score, shape=point)
             if best is None or score.log_p < best.log_p:
                 best = score
@@ -279,23 +282,25 @@ def detectable_total(info: np.ndarray, z: float, direction: np.ndarray, accepted
     return by_score, detectable
 
 
-def _between_logs(column: np.ndarray, base: np.ndarray, row_log: np.ndarray) -> bool:
+def _between_logs(column: np.ndarray, per_log: Mapping[int, tuple[np.ndarray, np.ndarray]]
+                  ) -> bool:
     """Whether, within every log alone, ``column`` (a candidate's main column, whitened) lies
-    in the span of ``base`` (the current model's columns) restricted to that log's rows:
-    then no log tests the candidate on its own, only the differences between two logs or
-    more do (friction that grows with the pressure, on logs at one pressure each: within a
-    log it is that log's friction level)."""
-    logs = [k for k in np.unique(row_log) if np.any(column[row_log == k])]
-    if len(logs) < 2:
-        return False
-    for k in logs:
-        rows = row_log == k
-        c, b = column[rows], base[rows]
-        b = b[:, np.any(b != 0, axis=0)]
-        left = c - b @ np.linalg.lstsq(b, c, rcond=None)[0] if b.shape[1] else c
-        if float(left @ left) >= _BETWEEN * float(c @ c):
+    in the span of the current model's columns restricted to that log's rows (``per_log``:
+    per log, its rows and an orthonormal basis of those columns there): then no log tests
+    the candidate on its own, only the differences between two logs or more do (friction
+    that grows with the pressure, on logs at one pressure each: within a log it is that
+    log's friction level)."""
+    seen = 0
+    for rows, q in per_log.values():
+        c = column[rows]
+        size = float(c @ c)
+        if size == 0.0:
+            continue
+        seen += 1
+        left = c - q @ (q.T @ c) if q.shape[1] else c
+        if float(left @ left) >= _BETWEEN * size:
             return False
-    return True
+    return seen >= 2
 
 
 def chi2_logsf(x: float, dof: int) -> float:
@@ -347,7 +352,8 @@ class _AcceptSize:
 def _score(effect: str, sp: SuperProblem, tested: np.ndarray, g_cols: np.ndarray,
            q: np.ndarray, r_perp: np.ndarray, s2: float, alpha: float,
            n_grid: int, *, accept: _AcceptSize, unfiltered: np.ndarray,
-           base: tuple[np.ndarray, np.ndarray], row_log: np.ndarray) -> Score:
+           base: tuple[np.ndarray, np.ndarray],
+           per_log: Mapping[int, tuple[np.ndarray, np.ndarray]]) -> Score:
     owners = [sp.owners[k] for k in tested]
     main = owners[0].name.rsplit("_", 1)[0] if owners[0].name.endswith("_1") else owners[0].name
     direction_vec = np.array([1.0 if (o.name == main or o.name.rsplit("_", 1)[0] == main)
@@ -398,4 +404,4 @@ def _score(effect: str, sp: SuperProblem, tested: np.ndarray, g_cols: np.ndarray
     return Score(effect, statistic, dof, p, log_p, sign, True, None, detectable, main, param,
                  one_step, {}, column / np.linalg.norm(column),
                  {int(k): float(v) for k, v in zip(cols, shift)},
-                 _between_logs(g_cols @ direction_vec, b, row_log))
+                 _between_logs(g_cols @ direction_vec, per_log))
