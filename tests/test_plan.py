@@ -399,3 +399,44 @@ def test_diagnose_without_the_rigs_limits_writes_its_diagnosis_and_says_how_to_p
     assert "--stroke-range" in said[0] and "--pressures" in said[0]
     assert not data["next_experiment"] and not (out / "plan").exists()
     assert "not planned" in printed.out
+
+
+def test_programs_scored_together_get_what_each_gets_alone(pause_free, monkeypatch):
+    """The search scores its candidate programs in ``vmap``-ed batches (``outputs_many``,
+    the last batch filled with copies): each program's outputs and derivatives are those of a
+    plain forward Jacobian of the rival's prediction on that program alone, by all its
+    entries, reduced to the free ones and the effect's direction."""
+    import jax
+    import jax.numpy as jnp
+
+    from fitstiff.planning import separation
+    from fitstiff.planning.plan import _Scorer
+    from fitstiff.planning.rivals import Confusion, Rivals
+
+    monkeypatch.setattr(separation, "LANES", 2)            # 3 programs: a batch and a filled one
+    rivals = Rivals(pause_free, "chamber+dahl+viscous", ["stribeck"])
+    limits = Limits.from_logs(pause_free, max_duration_s=4.0)
+    noise = separation.Noise(sigma_N=0.1, rho=0.3)
+    scorer = _Scorer(Confusion("undecided", ("stribeck", ABSENT), ""), rivals, pause_free,
+                     limits, noise)
+    picked = list(choices(limits, supply_bar=4.0, start_position_mm=350.0))[:3]
+    drives = [scorer.drive(c)[0] for c in picked]
+    rival = scorer.b
+    together = separation.outputs_many(rival, drives, noise, along=scorer.direction)
+    free = np.flatnonzero(rival.free)
+    w = jnp.asarray([1.0 / noise.scale(noise.sigma_N)])
+    for drive, got in zip(drives, together):
+        def f(x, nuis, drive=drive):
+            return separation._whitened(x, nuis, rival.model, rival.par, drive, w)
+
+        x = jnp.asarray(rival.values)
+        jx, jn = jax.jacfwd(f, argnums=(0, 1))(x, jnp.zeros(2))
+        jx = np.asarray(jx)
+        scale = np.abs(jx).max()
+        assert np.max(np.abs(got.y - np.asarray(f(x, jnp.zeros(2))))) <= 1e-9 * np.abs(got.y).max()
+        assert np.max(np.abs(got.jac - jx[:, free])) <= 1e-9 * scale
+        assert np.max(np.abs(got.along - jx @ scorer.direction)) <= 1e-9 * scale
+        assert np.max(np.abs(got.nuisance - np.asarray(jn))) <= 1e-9 * np.abs(jn).max()
+    # and a score of them together is each one's score alone
+    alone = [scorer.score(c)["objective"] for c in picked]
+    assert [s["objective"] for s in scorer.score_many(picked)] == pytest.approx(alone, rel=1e-9)

@@ -27,8 +27,8 @@ from fitstiff.physics.drive import make_drive
 from fitstiff.physics.simulate import CSV_DIGITS
 from fitstiff.planning.families import Choice, Limits, choices, naive_choice
 from fitstiff.planning.rivals import ABSENT, Confusion, Rivals, confusions, deferred
-from fitstiff.planning.separation import (LEVEL, POWER, Noise, detectable_size,
-                                          noncentrality, outputs, sizes)
+from fitstiff.planning.separation import (LEVEL, POWER, Noise, Outputs, detectable_size,
+                                          noncentrality, outputs_many, sizes)
 from fitstiff.segments.segmentation import standstill
 from fitstiff.inference.problem import channel_noise
 from fitstiff.inference.selection import Selection
@@ -200,36 +200,53 @@ class _Scorer:
 
     def score(self, choice: Choice) -> dict[str, object]:
         """``objective`` (larger separates better) and the ``expected`` record."""
-        try:
-            drive, t, x = self.drive(choice)
-        except InputError as exc:      # leaves the chambers' room: not a program of the rig
-            return {"objective": -math.inf, "error": str(exc)}
-        ob = outputs(self.b, drive, self.noise)
-        free = self.b.free
-        scale_b = sizes(self.b.values[free])
+        return self.score_many([choice])[0]
+
+    def score_many(self, choices: Sequence[Choice]) -> list[dict[str, object]]:
+        """:meth:`score` of each of ``choices``, their rivals' predictions computed together
+        (:func:`~fitstiff.planning.separation.outputs_many`)."""
+        out: list[dict[str, object] | None] = [None] * len(choices)
+        built = []
+        for i, choice in enumerate(choices):
+            try:
+                built.append((i, *self.drive(choice)))
+            except InputError as exc:  # leaves the chambers' room: not a program of the rig
+                out[i] = {"objective": -math.inf, "error": str(exc)}
+        drives = [b[1] for b in built]
         if self.a is None:
-            r = ob.jac @ self.direction
-            per_unit = noncentrality(r, ob.jac[:, free], ob.nuisance, self.b.information,
-                                     scale_b)
-            size = detectable_size(per_unit) * self.direction.sum()
-            shown = self.param.to_display(size) if math.isfinite(size) else None
-            return {"objective": per_unit, "parameter": self.parameter,
-                    "unit": self.param.unit, "detectable_size": shown,
-                    "power": POWER, "level": LEVEL,
-                    "noncentrality_per_unit_si": per_unit}
-        oa = outputs(self.a, drive, self.noise)
+            obs = outputs_many(self.b, drives, self.noise, along=self.direction)
+            for (i, *_), ob in zip(built, obs):
+                out[i] = self._single(ob)
+        else:
+            pairs = zip(outputs_many(self.a, drives, self.noise),
+                        outputs_many(self.b, drives, self.noise))
+            for (i, _, t, _), (oa, ob) in zip(built, pairs):
+                out[i] = self._pair(oa, ob, len(t))
+        return out
+
+    def _single(self, ob: Outputs) -> dict[str, object]:
+        per_unit = noncentrality(ob.along, ob.jac, ob.nuisance, self.b.information,
+                                 sizes(self.b.values[self.b.free]))
+        size = detectable_size(per_unit) * self.direction.sum()
+        shown = self.param.to_display(size) if math.isfinite(size) else None
+        return {"objective": per_unit, "parameter": self.parameter,
+                "unit": self.param.unit, "detectable_size": shown,
+                "power": POWER, "level": LEVEL,
+                "noncentrality_per_unit_si": per_unit}
+
+    def _pair(self, oa: Outputs, ob: Outputs, n: int) -> dict[str, object]:
         r = oa.y - ob.y
-        lam_ab = noncentrality(r, ob.jac[:, free], ob.nuisance, self.b.information, scale_b)
-        fa = self.a.free
-        lam_ba = noncentrality(-r, oa.jac[:, fa], oa.nuisance, self.a.information,
-                               sizes(self.a.values[fa]))
+        lam_ab = noncentrality(r, ob.jac, ob.nuisance, self.b.information,
+                               sizes(self.b.values[self.b.free]))
+        lam_ba = noncentrality(-r, oa.jac, oa.nuisance, self.a.information,
+                               sizes(self.a.values[self.a.free]))
         lam = min(lam_ab, lam_ba)
         a, b = self.confusion.separates
         return {"objective": lam, "z": math.sqrt(lam), "noncentrality": lam,
                 # if a is true, b refits (and leaves lam_ab of the difference), and back
                 "noncentrality_if": {a: lam_ab, b: lam_ba},
                 "force_difference_rms_N": float(np.sqrt(np.mean(
-                    (r[:len(t)] * self.noise.scale(self.noise.sigma_N)) ** 2)))}
+                    (r[:n] * self.noise.scale(self.noise.sigma_N)) ** 2)))}
 
     def predicted(self, choice: Choice, expected: Mapping[str, object]
                   ) -> dict[str, np.ndarray]:
@@ -380,11 +397,10 @@ def _search(scorer: _Scorer, limits: Limits, logs: Sequence[Log]
     starts_logged = [log.rig.start_position / MM for log in logs
                      if log.rig.start_position is not None]
     home = float(np.clip(np.median(starts_logged), lo, hi)) if starts_logged else (lo + hi) / 2
-    scored: list[tuple[float, Choice, dict]] = []
-    for supply in dict.fromkeys((near, far)):
-        for choice in choices(limits, supply_bar=supply, start_position_mm=home):
-            s = scorer.score(choice)
-            scored.append((s["objective"], choice, s))
+    first = [choice for supply in dict.fromkeys((near, far))
+             for choice in choices(limits, supply_bar=supply, start_position_mm=home)]
+    scored: list[tuple[float, Choice, dict]] = [
+        (s["objective"], choice, s) for choice, s in zip(first, scorer.score_many(first))]
     if not scored:
         return []
     scored.sort(key=lambda v: -v[0])
@@ -397,16 +413,16 @@ def _search(scorer: _Scorer, limits: Limits, logs: Sequence[Log]
     positions = dict.fromkeys((home, lo + 0.25 * (hi - lo), hi - 0.25 * (hi - lo)))
     seen = {(c.family, tuple(c.options.items()), c.supply_bar, c.start_position_mm)
             for _, c, _ in scored}
+    shortlist = []
     for family, options in shapes:
         for supply in supplies:
             for position in positions:
-                choice = Choice(family, dict(options), supply, position)
                 key = (family, options, supply, position)
-                if key in seen:
-                    continue
-                seen.add(key)
-                s = scorer.score(choice)
-                scored.append((s["objective"], choice, s))
+                if key not in seen:
+                    seen.add(key)
+                    shortlist.append(Choice(family, dict(options), supply, position))
+    scored += [(s["objective"], choice, s)
+               for choice, s in zip(shortlist, scorer.score_many(shortlist))]
     scored.sort(key=lambda v: -v[0])
     objective, best, s = scored[0]
     if not objective > 0:

@@ -39,7 +39,7 @@ from fitstiff.physics.drive import Drive
 from fitstiff.physics.model import Model
 from fitstiff.physics.params import Parameterization
 
-__all__ = ["Noise", "Rival", "Outputs", "outputs", "noncentrality", "detectable_size", "POWER",
+__all__ = ["Noise", "Rival", "Outputs", "outputs", "outputs_many", "LANES", "noncentrality", "detectable_size", "POWER",
            "LEVEL", "RCOND", "sizes"]
 
 #: power and two-sided level at which :func:`detectable_size` states a size (the
@@ -48,6 +48,13 @@ POWER = 0.8
 LEVEL = 0.05
 #: relative cut-off of the pseudo-inverses of information matrices
 RCOND = 1e-10
+#: the forward tangents of :func:`outputs` come in multiples of this many columns
+_TANGENT_STEP = 4
+#: drives :func:`outputs_many` runs in one call (16 programs of 10 000 samples: 0.010 s a
+#: program against 0.062 s one at a time, 2 cores), fewer for long ones: at most
+#: ``_LANE_SAMPLES`` samples a call
+LANES = 16
+_LANE_SAMPLES = 2_000_000
 
 
 @dataclasses.dataclass(frozen=True)
@@ -97,11 +104,14 @@ class Rival:
 @dataclasses.dataclass(frozen=True)
 class Outputs:
     """A rival's whitened outputs on one program and their derivatives: ``y`` (n,),
-    ``jac`` (n, free parameters), ``nuisance`` (n, 2: force offset, initial friction state)."""
+    ``jac`` (n, its free parameters, in the order of ``Rival.free``), ``nuisance`` (n, 2:
+    force offset, initial friction state), ``along`` (n,: the derivative along the
+    ``along`` direction asked of :func:`outputs`, or ``None``)."""
 
     y: np.ndarray
     jac: np.ndarray
     nuisance: np.ndarray
+    along: np.ndarray | None = None
 
 
 def _whitened(x, nuis, model, par, drive, weights):
@@ -114,27 +124,73 @@ def _whitened(x, nuis, model, par, drive, weights):
     return jnp.concatenate(parts)
 
 
+def _with_jacobian(x, tangents, nuis, model, par, drive, weights):
+    """``y`` and its derivatives along the columns of ``tangents`` (``J @ tangents``, one
+    forward tangent per column: a rival frees a few of the super-model's many entries) and
+    by the nuisances."""
+    def f(c, nuis):
+        return _whitened(x + tangents @ c, nuis, model, par, drive, weights)
+
+    c = jnp.zeros(tangents.shape[1])
+    y = f(c, nuis)
+    jc, jn = jax.jacfwd(f, argnums=(0, 1))(c, nuis)
+    return y, jc, jn
+
+
 @eqx.filter_jit
-def _with_jacobian(x, nuis, model, par, drive, weights):
-    def f(x, nuis):
-        return _whitened(x, nuis, model, par, drive, weights)
-
-    y = f(x, nuis)
-    jx, jn = jax.jacfwd(f, argnums=(0, 1))(x, nuis)
-    return y, jx, jn
+def _batched(x, tangents, nuis, model, par, drives, weights):
+    """:func:`_with_jacobian` over a stack of drives (a leading axis on every array leaf)."""
+    return eqx.filter_vmap(
+        lambda drive: _with_jacobian(x, tangents, nuis, model, par, drive, weights))(drives)
 
 
-def outputs(rival: Rival, drive: Drive, noise: Noise) -> Outputs:
-    """The rival's whitened outputs on ``drive`` and their derivatives by every entry of its
-    ``par`` and by the new record's nuisances."""
-    model = rival.model
+def outputs(rival: Rival, drive: Drive, noise: Noise, *,
+            along: np.ndarray | None = None) -> Outputs:
+    """The rival's whitened outputs on ``drive`` and their derivatives by its free entries,
+    by the new record's nuisances and (``along``, a vector over ``rival.par``) along one more
+    direction."""
+    return outputs_many(rival, [drive], noise, along=along)[0]
+
+
+def outputs_many(rival: Rival, drives: Sequence[Drive], noise: Noise, *,
+                 along: np.ndarray | None = None) -> list[Outputs]:
+    """:func:`outputs` on each of ``drives``. Drives of one length and structure are run
+    :data:`LANES` at a time as one ``vmap``-ed call (a plan scores its candidate programs so:
+    the simulator's scan steps once for all of them), the last call of a group filled with
+    copies, so that a group compiles once; a drive alone in its group runs alone. The
+    tangents are padded with zero columns to a multiple of :data:`_TANGENT_STEP`, so the
+    rivals of a plan share their compilations."""
+    free = np.flatnonzero(rival.free)
+    m = free.size + (along is not None)
+    width = _TANGENT_STEP * max(1, -(-m // _TANGENT_STEP))
+    tangents = np.zeros((rival.par.size, width))
+    tangents[free, np.arange(free.size)] = 1.0
+    if along is not None:
+        tangents[:, free.size] = along
     x = jnp.asarray(rival.values, dtype=float)
-    weights = [1.0 / noise.scale(noise.sigma_N)]
-    if noise.pressure_Pa is not None and "closed" in drive.modes:
-        weights.append(1.0 / noise.scale(noise.pressure_Pa))
-    y, jx, jn = _with_jacobian(x, jnp.zeros(2), model, rival.par, drive,
-                               jnp.asarray(weights))
-    return Outputs(np.asarray(y), np.asarray(jx), np.asarray(jn))
+    tangents = jnp.asarray(tangents)
+    groups: dict[tuple, list[int]] = {}
+    for i, drive in enumerate(drives):
+        groups.setdefault((len(drive), jax.tree.structure(drive)), []).append(i)
+    out: list[Outputs | None] = [None] * len(drives)
+    for (n, _), index in groups.items():
+        weights = [1.0 / noise.scale(noise.sigma_N)]
+        if noise.pressure_Pa is not None and "closed" in drives[index[0]].modes:
+            weights.append(1.0 / noise.scale(noise.pressure_Pa))
+        weights = jnp.asarray(weights)
+        lanes = 1 if len(index) == 1 else max(1, min(LANES, _LANE_SAMPLES // max(n, 1)))
+        for k in range(0, len(index), lanes):
+            chunk = index[k:k + lanes]
+            batch = [drives[i] for i in chunk]
+            batch += [batch[-1]] * (lanes - len(batch))
+            stacked = jax.tree.map(lambda *xs: jnp.stack(xs), *batch)
+            y, jc, jn = _batched(x, tangents, jnp.zeros(2), rival.model, rival.par, stacked,
+                                 weights)
+            y, jc, jn = np.asarray(y), np.asarray(jc), np.asarray(jn)
+            for lane, i in enumerate(chunk):
+                out[i] = Outputs(y[lane], jc[lane, :, :free.size], jn[lane],
+                                 jc[lane, :, free.size] if along is not None else None)
+    return out
 
 
 def noncentrality(r: np.ndarray, jac: np.ndarray, nuisance: np.ndarray,
