@@ -146,3 +146,43 @@ def test_the_data_options_travel_as_one_record(logs):
         Selection(denoise="off")
     with pytest.raises(InputError, match="exclude \\(5, 2\\).*0 <= start < stop"):
         Problem(logs, "chamber+dahl", selection=Selection(exclude=[(5, 2)]))
+
+
+def test_a_stack_whose_entries_all_weigh_zero_is_not_run_and_changes_nothing():
+    """``weighted_residuals`` is ``residuals_physical * weights`` to the bit, with or without
+    a stack left out, and so are its derivatives; the left-out stack sits behind a
+    ``cond`` on its weights (a held-out fold that leaves the long log out does not run it)."""
+    import jax
+    import jax.numpy as jnp
+
+    from fitstiff.io.log import Rig
+    from fitstiff.physics.programs import TriangleCycles
+    from fitstiff.physics.simulate import Noise, simulate
+
+    rig = Rig(bore=0.032, rod=0.0, stroke=0.7, start_position=0.35, supply_pressure=4e5)
+    two = [simulate("chamber+dahl", TriangleCycles(amplitudes_mm=(0.2, 1.0), rate_mm_s=2.0),
+                    rig=rig, seed=k, rate_hz=rate, name=f"log{k}",
+                    noise=Noise(force_N=0.1, displacement_um=0.0, pressure_mbar=0.0)).log
+           for k, rate in enumerate((400.0, 100.0))]
+    p = Problem(two, "chamber+dahl")
+    assert len(p.groups) == 2                          # 4:1 in length: a stack each
+    theta = jnp.asarray(p.pack(p.model))
+    x = p.par.physical(theta[:p.par.size])
+    n = max(s.span.stop for s in p.residual_series())
+    long_out = np.ones(n)
+    for s in p.residual_series():
+        if s.log == 0:
+            long_out[s.span] = 0.0
+    weighted = jax.jit(p.weighted_residuals)
+    plain = jax.jit(lambda x, theta, w: p.residuals_physical(x, theta) * w)
+    for w in (np.ones(n), long_out, np.zeros(n)):
+        w = jnp.asarray(w)
+        expected = np.asarray(plain(x, theta, w))
+        scale = np.abs(np.asarray(plain(x, theta, jnp.ones(n)))).max()
+        np.testing.assert_allclose(weighted(x, theta, w), expected, rtol=1e-10,
+                                   atol=1e-10 * scale)
+        assert np.all(np.asarray(weighted(x, theta, w))[np.asarray(w) == 0] == 0.0)
+        jg = jax.jacfwd(weighted)(x, theta, w)
+        je = jax.jacfwd(plain)(x, theta, w)
+        np.testing.assert_allclose(jg, je, rtol=1e-10, atol=1e-10 * np.abs(np.asarray(je)).max())
+    assert "cond" in str(jax.make_jaxpr(p.weighted_residuals)(x, theta, jnp.asarray(long_out)))

@@ -11,13 +11,14 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 from typing import NamedTuple
 
 import numpy as np
 from scipy.optimize import nnls
 
 from fitstiff.diagnosis.screen import Score, screen
-from fitstiff.diagnosis.select import MIN_GAIN, FoldFit, HeldOut
+from fitstiff.diagnosis.select import _WORKERS, MIN_GAIN, FoldFit, HeldOut
 from fitstiff.diagnosis.supermodel import SuperProblem
 from fitstiff.physics.params import to_display
 from fitstiff.physics.terms import FrictionBase, MaxwellSlip
@@ -158,6 +159,10 @@ class FoldStarts:
            on: Sequence[FoldFit] | None = None) -> list[FoldFit]:
         """Every fold's start for ``effect`` on top of the current model's fold fits, or on
         top of ``on`` (a partner's refit starts, for a pair)."""
+        waiting = [k for k in range(len(self.folds)) if effect not in self.scores[k]]
+        if len(waiting) > 1:        # the folds' screens are independent: two at a time
+            with ThreadPoolExecutor(max_workers=_WORKERS) as pool:
+                list(pool.map(lambda k: self.score(k, effect, batch), waiting))
         out = []
         for k, fold in enumerate(self.folds):
             s = self.score(k, effect, batch)

@@ -63,6 +63,7 @@ MIN_GAIN = 0.05
 MAX_LOOP_FOLDS = 4
 #: the nuisances a held-out block that starts a log owns (fitted to the block alone)
 _BLOCK_OWN = ("friction_state0",)
+#: folds solved (and screened) at a time, each on a thread: the compiled scans release the GIL
 _WORKERS = min(2, os.cpu_count() or 1)
 
 

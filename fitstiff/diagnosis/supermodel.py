@@ -505,7 +505,7 @@ def _masked_solve(p: Problem, theta_pad, index, hold, free_model, weights, max_s
     def residuals(z):
         theta = theta_pad.at[index].set(z)[:-1]
         x = jnp.where(free_model, p.par.physical(theta[:n_model]), hold)
-        return p.residuals_physical(x, theta) * weights
+        return p.weighted_residuals(x, theta, weights)
 
     sol = levenberg_marquardt(residuals, theta_pad[index], rtol=_RTOL, atol=_RTOL,
                               max_steps=max_steps)

@@ -379,17 +379,30 @@ class Problem:
                         channels: Sequence[str] = CHANNELS, predictions=None):
         """:meth:`residuals` of a given model and nuisance values (``predictions``: their
         :meth:`model_predictions`, when the caller has them)."""
-        parts = []
         if predictions is None:
             predictions = self.model_predictions(model, nuisances, displacements)
-        for group, pred in zip(self._groups, predictions):
-            if "force" in channels:
-                parts.append(((pred.force - group.force) * group.weight).ravel())
-            for c, measured in enumerate(group.pressure):
-                if measured is None or CHANNELS[1 + c] not in channels:
-                    continue
-                modelled = pred.pressure_a if c == 0 else pred.pressure_b
-                parts.append(((modelled - measured) * group.pressure_weight[c]).ravel())
+        return jnp.concatenate([_group_residuals(group, pred, channels)
+                                for group, pred in zip(self._groups, predictions)])
+
+    def weighted_residuals(self, x, theta, weights):
+        """``residuals_physical(x, theta) * weights`` (``weights``: one per residual entry, at
+        run time), where a stack whose entries all weigh 0 is not run: its part is 0. A
+        held-out fold leaves a log out by its weights, and the longest log alone in its
+        stack then costs nothing in the fold's solves (``lax.cond`` on the weights; under
+        ``vmap`` both branches run)."""
+        model = self.par.physical_to_model(x, self.model)
+        nuisances = self.nuisances(theta)
+        parts, start = [], 0
+        for group in self._groups:
+            size = group.force.size * (1 + sum(m is not None for m in group.pressure))
+            w = weights[start:start + size]
+            start += size
+
+            def run(w, group=group):
+                pred = jax.vmap(model.run)(self._group_drive(group, nuisances))
+                return _group_residuals(group, pred, CHANNELS) * w
+
+            parts.append(jax.lax.cond(jnp.any(w != 0), run, jnp.zeros_like, w))
         return jnp.concatenate(parts)
 
     def closing_pressures(self, theta):
@@ -496,6 +509,19 @@ class Problem:
         for name, value in zip(("_groups", "drives", "_reversal_noise"), arrays):
             object.__setattr__(bound, name, value)
         return bound
+
+
+def _group_residuals(group: Group, pred, channels: Sequence[str]):
+    """The whitened residual entries of one stack (force, then the observed pressures)."""
+    parts = []
+    if "force" in channels:
+        parts.append(((pred.force - group.force) * group.weight).ravel())
+    for c, measured in enumerate(group.pressure):
+        if measured is None or CHANNELS[1 + c] not in channels:
+            continue
+        modelled = pred.pressure_a if c == 0 else pred.pressure_b
+        parts.append(((modelled - measured) * group.pressure_weight[c]).ravel())
+    return jnp.concatenate(parts)
 
 
 def with_nuisances(drive: Drive, nuisances: Mapping[str, jnp.ndarray], index) -> Drive:
