@@ -18,7 +18,7 @@ import numpy as np
 from scipy.optimize import nnls
 
 from fitstiff.diagnosis.screen import Score, screen
-from fitstiff.diagnosis.select import _WORKERS, MIN_GAIN, FoldFit, HeldOut
+from fitstiff.diagnosis.select import FOLD_THREADS, MIN_GAIN, FoldFit, HeldOut
 from fitstiff.diagnosis.supermodel import SuperProblem
 from fitstiff.physics.params import to_display
 from fitstiff.physics.terms import FrictionBase, MaxwellSlip
@@ -161,7 +161,7 @@ class FoldStarts:
         top of ``on`` (a partner's refit starts, for a pair)."""
         waiting = [k for k in range(len(self.folds)) if effect not in self.scores[k]]
         if len(waiting) > 1:        # the folds' screens are independent: two at a time
-            with ThreadPoolExecutor(max_workers=_WORKERS) as pool:
+            with ThreadPoolExecutor(max_workers=FOLD_THREADS) as pool:
                 list(pool.map(lambda k: self.score(k, effect, batch), waiting))
         out = []
         for k, fold in enumerate(self.folds):

@@ -14,15 +14,15 @@ current model's by at least 5 % of the noise floor (``MIN_GAIN``: the floor itse
 to a few per cent); (4) it removes at least ``min_shrink`` of the gap above the noise floor,
 ``shrink = (before - after) / (before - noise)``; and (5) an effect the logs test only against
 each other (``Score.between_logs``) predicts no left-out log worse by ``MIN_GAIN`` of the noise
-floor or more (:func:`~fitstiff.diagnosis._refit.worse_log`). Among the candidates that pass,
-the one with the lowest held-out RMS is accepted; the screen is then repeated on the enlarged model, until
-none passes. Then each accepted effect is judged as if it had been added last (the final
-model without it against with it, by conditions (3) and (4)) and dropped if it fails: a later
-effect can leave an earlier one nothing of its own (:func:`~fitstiff.diagnosis.prune.prune`).
-Condition (1) bounds the false-alarm rate on data with no missing effect by ``alpha`` as long as
-the AR(1) noise model holds; (4) keeps a partial mimic of an effect outside the library from
-being named. Both thresholds are measured in the withheld-effect
-benchmark (``benchmarks/withheld.py``).
+floor or more (:func:`~fitstiff.diagnosis._refit.worse_log`). Among the candidates that
+pass, the one with the lowest held-out RMS is accepted; the screen is then repeated on the
+enlarged model, until none passes. Then each accepted effect is judged as if it had been
+added last (the final model without it against with it, by conditions (3) and (4)) and
+dropped if it fails: a later effect can leave an earlier one nothing of its own
+(:func:`~fitstiff.diagnosis.prune.prune`). Condition (1) bounds the false-alarm rate on
+data with no missing effect by ``alpha`` as long as the AR(1) noise model holds; (4) keeps a
+partial mimic of an effect outside the library from being named. Both thresholds are
+measured in the withheld-effect benchmark (``benchmarks/withheld.py``).
 
 **The fold rule.** No fold ever starts from, or is tuned by, anything fitted on its held-out
 part. Each fold carries its own fit (:class:`FoldFit`) from round to round: the baseline's
@@ -53,7 +53,8 @@ import numpy as np
 from fitstiff.diagnosis.supermodel import SuperProblem
 from fitstiff.errors import InputError
 
-__all__ = ["Fold", "FoldFit", "HeldOut", "MIN_GAIN", "fold_starts", "folds_for", "held_out"]
+__all__ = ["FOLD_THREADS", "Fold", "FoldFit", "HeldOut", "MIN_GAIN", "fold_starts", "folds_for",
+           "held_out"]
 
 #: least fall of the held-out RMS, as a share of the noise floor: the floor is estimated to a
 #: few per cent, so a smaller fall cannot be told from its error (on the stribeck set a time
@@ -64,7 +65,7 @@ MAX_LOOP_FOLDS = 4
 #: the nuisances a held-out block that starts a log owns (fitted to the block alone)
 _BLOCK_OWN = ("friction_state0",)
 #: folds solved (and screened) at a time, each on a thread: the compiled scans release the GIL
-_WORKERS = min(2, os.cpu_count() or 1)
+FOLD_THREADS = min(2, os.cpu_count() or 1)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -204,7 +205,7 @@ def held_out(sp: SuperProblem, folds: Sequence[Fold], starts: Sequence[FoldFit],
 
     # the folds are independent: two at a time on two cores (the compiled scan runs on one
     # core and releases the GIL); the results do not depend on the order
-    with ThreadPoolExecutor(max_workers=_WORKERS) as pool:
+    with ThreadPoolExecutor(max_workers=FOLD_THREADS) as pool:
         done = list(pool.map(one, folds, starts))
     residuals = [np.zeros(len(log)) for log in p.logs]
     converged, steps = True, 0
