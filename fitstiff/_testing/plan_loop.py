@@ -17,7 +17,7 @@ import time
 import traceback
 from collections.abc import Mapping, Sequence
 
-from fitstiff._testing.withheld import make_dataset, simulate_program
+from fitstiff._testing.withheld import OOL_VARIABLE, make_dataset, simulate_program
 from fitstiff._testing.withheld_scoring import _rate
 from fitstiff.diagnosis import Diagnosis, diagnose
 from fitstiff.planning import Limits, plan
@@ -57,7 +57,10 @@ def _summary(d: Diagnosis, truth) -> dict[str, object]:
             "heldout_rms_N": d.gap["final_heldout_rms_N"],
             "untestable": sorted(k for k, v in d.detectability.items()
                                  if not v.get("testable", True)),
-            "structure": [u.variable for u in d.unexplained_structure if u.accepted]}
+            "structure": [u.variable for u in d.unexplained_structure if u.accepted],
+            "described": [{"variable": u.variable, "form": u.form,
+                           "confounded_with": list(u.confounded_with)}
+                          for u in d.unexplained_structure if u.accepted]}
 
 
 def run_closed_loop(dataset_id: str, rate_scale: float = 1.0) -> dict[str, object]:
@@ -126,6 +129,29 @@ def _row(record: Mapping[str, object]) -> str:
     return f"{record['family']}/{'+'.join(record['withheld'])}"
 
 
+def _pinned(summary: Mapping[str, object], want: str) -> bool:
+    """Whether the first description names ``want`` and no variable it is confounded with."""
+    first = (summary.get("described") or [None])[0]
+    return first is not None and first["variable"] == want and not first["confounded_with"]
+
+
+def _structure_rates(records: Sequence[Mapping[str, object]]) -> dict[str, object]:
+    """Out-of-library datasets: the variable their residual follows described first and
+    confounded with nothing, before, after the naive and after the planned experiment (and
+    confounded at all)."""
+    def want(r):
+        return OOL_VARIABLE[r["id"].split("/")[1]]
+
+    out = {}
+    for stage in ("before", "after_naive", "after_planned"):
+        out[stage] = {
+            "pinned": _rate(sum(_pinned(r[stage], want(r)) for r in records), len(records)),
+            "confounded": _rate(sum(bool(r[stage].get("described"))
+                                    and bool(r[stage]["described"][0]["confounded_with"])
+                                    for r in records), len(records))}
+    return out
+
+
 def score_loop(records: Sequence[Mapping[str, object]]) -> dict[str, object]:
     """The closed-loop table: per row (family and withheld effect), named exactly before,
     after the naive and after the planned experiment; totals over the datasets that got a
@@ -141,9 +167,12 @@ def score_loop(records: Sequence[Mapping[str, object]]) -> dict[str, object]:
 
     effects = [r for r in planned if r["family"] != "null"]
     nulls = [r for r in planned if r["family"] == "null"]
+    structure = [r for r in planned
+                 if r["family"] == "ool" and OOL_VARIABLE[r["id"].split("/")[1]]]
     times = sorted(r["plan_s"] for r in planned if "plan_s" in r)
     return {"rows": {k: rates(v) for k, v in sorted(rows.items())},
             "effects": rates(effects), "nulls": rates(nulls),
+            "structure": _structure_rates(structure),
             "no_plan_needed": sum(1 for r in records if r.get("reason") is None),
             "plan_s_median": times[len(times) // 2] if times else None,
             "plan_s_max": times[-1] if times else None}

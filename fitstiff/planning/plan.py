@@ -25,6 +25,7 @@ from fitstiff.errors import InputError
 from fitstiff.io.log import Log
 from fitstiff.physics.drive import make_drive
 from fitstiff.physics.simulate import CSV_DIGITS
+from fitstiff.planning.descriptions import DescribedPair
 from fitstiff.planning.families import Choice, Limits, choices, naive_choice
 from fitstiff.planning.rivals import ABSENT, Confusion, Rivals, confusions, deferred
 from fitstiff.planning.separation import (LEVEL, POWER, Noise, Outputs, detectable_size,
@@ -181,7 +182,12 @@ class _Scorer:
                  limits: Limits, noise: Noise):
         self.confusion, self.limits, self.noise = confusion, limits, noise
         self.template = logs[0].rig
-        if confusion.single:
+        self.described = None
+        if confusion.kind == "structure":
+            self.a, (self.b, residuals) = None, rivals.final()
+            self.described = DescribedPair(confusion.structure, confusion.separates[1],
+                                           residuals, self.b, noise)
+        elif confusion.single:
             self.b, self.direction, self.parameter, self.param = rivals.single(
                 confusion.separates[0])
             self.a = None
@@ -189,14 +195,23 @@ class _Scorer:
             self.a, self.b = rivals.pair(confusion)
         self.chamber = self.b.model.needs_chamber
 
+    def rig(self, choice: Choice):
+        return dataclasses.replace(self.template, start_position=choice.start_position_mm * MM,
+                                   supply_pressure=choice.supply_bar * BAR)
+
     def drive(self, choice: Choice):
         t, x = choice.sample(self.limits)
-        rig = dataclasses.replace(self.template, start_position=choice.start_position_mm * MM,
-                                  supply_pressure=choice.supply_bar * BAR)
-        drive = make_drive(displacement=x, time=t, rig=rig, still=standstill(x, t),
-                           needs_chamber=self.chamber, what="the planned program")
+        drive = make_drive(displacement=x, time=t, rig=self.rig(choice),
+                           still=standstill(x, t), needs_chamber=self.chamber,
+                           what="the planned program")
         return dataclasses.replace(drive, runs=None, log_volume_span=None,
                                    log_volume_ratios=None, name=""), t, x
+
+    def described_on(self, choice: Choice, t, x, force):
+        """The structure's two descriptions on ``choice`` (sampled as ``t``, ``x``), the
+        final model predicting ``force`` (N) there."""
+        log = Log(name="program", displacement=x, force=force, time=t, rig=self.rig(choice))
+        return self.described.on(log, force)
 
     def score(self, choice: Choice) -> dict[str, object]:
         """``objective`` (larger separates better) and the ``expected`` record."""
@@ -213,7 +228,18 @@ class _Scorer:
             except InputError as exc:  # leaves the chambers' room: not a program of the rig
                 out[i] = {"objective": -math.inf, "error": str(exc)}
         drives = [b[1] for b in built]
-        if self.a is None:
+        if self.described is not None:
+            obs = outputs_many(self.b, drives, self.noise)
+            sigma = self.noise.scale(self.noise.sigma_N)
+            for (i, _, t, x), ob in zip(built, obs):
+                n = len(t)
+                try:
+                    on = self.described_on(choices[i], t, x, ob.y[:n] * sigma)
+                except InputError as exc:
+                    out[i] = {"objective": -math.inf, "error": str(exc)}
+                    continue
+                out[i] = self.described.separation(ob, on, n)
+        elif self.a is None:
             obs = outputs_many(self.b, drives, self.noise, along=self.direction)
             for (i, *_), ob in zip(built, obs):
                 out[i] = self._single(ob)
@@ -253,7 +279,11 @@ class _Scorer:
         """The rivals' predicted force (N) on ``choice``, in the order of ``separates``; for
         a single effect, the final model with it at the size the program detects, then
         without it."""
-        drive, _, _ = self.drive(choice)
+        drive, t, x = self.drive(choice)
+        if self.described is not None:
+            force = np.asarray(self.b.model.predict(drive))
+            on = self.described_on(choice, t, x, force)
+            return {name: force + d.f for name, d in zip(self.confusion.separates, on)}
         if self.a is not None:
             return {r.name: np.asarray(r.model.predict(drive)) for r in (self.a, self.b)}
         absent = np.asarray(self.b.model.predict(drive))
@@ -291,7 +321,7 @@ def plan(diagnosis: Diagnosis, logs: Sequence[Log], *, limits: Limits | None = N
     found, later = deferred(confusions(diagnosis, separate=separate))
     most = max(1, max_programs // RUNS)
     rivals = Rivals(logs, diagnosis.final_model,
-                    [e for c in found + later for e in c.separates],
+                    [e for c in found + later for e in c.effects],
                     selection=Selection.given(selection, options))
     spent = {"rivals": 0.0, "search": 0.0}
     programs: list[PlannedProgram] = []
@@ -441,7 +471,10 @@ def _why(confusion: Confusion, choice: Choice, expected, naive, *, run: int = 0)
         return (f"the same {choice.family} program at {choice.supply_bar:.3g} bar from "
                 f"{choice.start_position_mm:.4g} mm: a second log of it, which the diagnosis "
                 "predicts from the first (it decides on held-out logs)")
-    what = (f"tests {a} against its absence" if b == ABSENT else f"separates {a} from {b}")
+    what = (f"tests {a} against its absence" if b == ABSENT else
+            f"tells whether the unexplained residual follows the {a.replace('_', ' ')} or the "
+            f"{b.replace('_', ' ')}" if confusion.kind == "structure" else
+            f"separates {a} from {b}")
     how = (f"{choice.family} ({', '.join(f'{k} {v:.3g}' for k, v in choice.options.items())}) "
            f"at {choice.supply_bar:.3g} bar from {choice.start_position_mm:.4g} mm")
     if b == ABSENT:

@@ -12,10 +12,14 @@ Kinds, in the order a plan takes them:
 ``untestable``  a candidate the logs cannot test (no excitation: no pauses for dwell
                 stiction, one pressure for pressure-dependent friction ...) against its
                 absence;
+``structure``   an unexplained structure's variable against a variable the logs cannot tell
+                it from (``Structure.confounded_with``: a curve along the position that is
+                as well a level per supply); both sides are descriptions of the final
+                model's residual (:mod:`fitstiff.planning.descriptions`), not effects;
 ``undecided``   a candidate whose screen is significant on the final model but that the
                 held-out rule did not accept, against its absence (or against another such
                 candidate whose screen log p-value is within :data:`SCREEN_TIE` of its own);
-                planned only when no tie, rival or untestable effect gets runs
+                planned only when no tie, rival, untestable effect or structure gets runs
                 (:func:`deferred`);
 ``requested``   what the user named (``--separate a,b`` or ``--separate a``).
 
@@ -39,18 +43,20 @@ from fitstiff.diagnosis.diagnose import ALPHA, baseline_fit, noise_floors
 from fitstiff.diagnosis.result import Diagnosis
 from fitstiff.diagnosis.screen import screen
 from fitstiff.diagnosis.select import MIN_GAIN
+from fitstiff.diagnosis.structure import Structure
 from fitstiff.diagnosis.supermodel import CANDIDATES, SuperProblem, spec_token
 from fitstiff.errors import InputError
 from fitstiff.inference.selection import Selection
 from fitstiff.io.log import Log
 from fitstiff.physics.model import parse_spec
 from fitstiff.physics.terms import EFFECTS
+from fitstiff.planning.descriptions import Residuals
 from fitstiff.planning.separation import RCOND, Rival
 
 __all__ = ["Confusion", "ABSENT", "KINDS", "confusions", "deferred", "Rivals"]
 
 ABSENT = "absent"
-KINDS = ("tie", "rival", "untestable", "undecided", "requested")
+KINDS = ("tie", "rival", "untestable", "structure", "undecided", "requested")
 #: two undecided candidates whose screen log p-values differ by at most this share are a pair
 #: the screen cannot order (heat exchange and a leak on closed chambers: 0.14 %)
 SCREEN_TIE = 0.01
@@ -59,15 +65,24 @@ SCREEN_TIE = 0.01
 @dataclasses.dataclass(frozen=True)
 class Confusion:
     """Two explanations the logs do not tell apart: ``separates`` is ``(a, b)`` (effect
-    names, ``b`` may be :data:`ABSENT`), ``kind`` one of :data:`KINDS`, ``why`` in words."""
+    names, ``b`` may be :data:`ABSENT`; for a ``structure``, the variables of
+    :data:`~fitstiff.diagnosis.structure.VARIABLES`), ``kind`` one of :data:`KINDS`, ``why``
+    in words."""
 
     kind: str
     separates: tuple[str, str]
     why: str
+    #: the diagnosis' description, for a ``structure``
+    structure: Structure | None = dataclasses.field(default=None, compare=False, repr=False)
 
     @property
     def single(self) -> bool:
         return self.separates[1] == ABSENT
+
+    @property
+    def effects(self) -> tuple[str, ...]:
+        """The library effects it separates (none for a structure's variables)."""
+        return () if self.kind == "structure" else self.separates
 
 
 def confusions(diagnosis: Diagnosis, *, separate: Sequence[str] | None = None
@@ -112,6 +127,14 @@ def confusions(diagnosis: Diagnosis, *, separate: Sequence[str] | None = None
         if not entry.get("testable", True) and effect not in diagnosis.accepted:
             out.append(Confusion("untestable", (effect, ABSENT),
                                  f"the logs cannot test {effect}: {entry.get('reason', '')}"))
+    for u in diagnosis.unexplained_structure:
+        if u.accepted:
+            out += [Confusion("structure", (u.variable, other),
+                              f"{u.size_N:.2g} N of the held-out residual follows the "
+                              f"{u.variable.replace('_', ' ')} ({u.form}) or the "
+                              f"{other.replace('_', ' ')}: the logs cannot tell them apart",
+                              structure=u)
+                    for other in u.confounded_with]
     # significant on the final model but not accepted, whatever the gap left: a real effect
     # can be certain in the screen and small in force (a leak at p = 1e-173 with the held-out
     # gap 1.5 % above the noise floor); two the screen cannot order are one pair
@@ -142,7 +165,7 @@ def confusions(diagnosis: Diagnosis, *, separate: Sequence[str] | None = None
 
 def deferred(found: Sequence[Confusion]) -> tuple[list[Confusion], list[Confusion]]:
     """``found`` split into the confusions to plan first and those deferred: the undecided
-    ones, while a tie, a rival or an untestable effect is there (:func:`~fitstiff.planning.plan`
+    ones, while a tie, a rival, an untestable effect or a confounded structure is there (:func:`~fitstiff.planning.plan`
     plans the deferred ones when the logs settle all of those, or no program can).
 
     What settles those comes first. A candidate significant on the final model while such a
@@ -150,8 +173,10 @@ def deferred(found: Sequence[Confusion]) -> tuple[list[Confusion], list[Confusio
     in the place of the untestable pressure-dependent friction, and the runs planned for it
     fed a time delay, a look-alike, into the next diagnosis (benchmark set
     ``missing/pressure_friction/0``, docs/planning.md). The diagnosis of the new runs plans
-    what is still undecided then."""
-    roots = [c for c in found if c.kind in ("tie", "rival", "untestable")]
+    what is still undecided then. So is a library candidate beside a structure the logs
+    cannot pin to one variable (pressure-dependent friction beside a residual that follows
+    the position or the supply pressure)."""
+    roots = [c for c in found if c.kind in ("tie", "rival", "untestable", "structure")]
     if not roots:
         return list(found), []
     return ([c for c in found if c.kind != "undecided"],
@@ -193,6 +218,7 @@ class Rivals:
         self.selection = selection or Selection()
         self._base: _Fit | None = None
         self._fits: dict[frozenset, Rival] = {}
+        self._thetas: dict[frozenset, np.ndarray] = {}
 
     @property
     def base_spec(self) -> str:
@@ -239,7 +265,24 @@ class Rivals:
                                  "check the logs fit the diagnosis' final model, or name "
                                  "the rivals with --separate")
             self._fits[key] = _rival(name, sp, theta, hold, active)
+            self._thetas[key] = np.asarray(theta)
         return dataclasses.replace(self._fits[key], name=name)
+
+    def final(self) -> tuple[Rival, Residuals]:
+        """The final model fitted to the logs, and its residuals there (what a structure's
+        descriptions describe, :mod:`fitstiff.planning.descriptions`)."""
+        effects = self._with()
+        rival = self.fitted("final", effects)
+        sp = self.sp
+        forces = sp.forces(rival.values, self._thetas[frozenset(effects)])
+        problem = sp.problem
+        return rival, Residuals(
+            logs=tuple(problem.logs),
+            residual=tuple(np.asarray(f) - np.asarray(log.force)
+                           for f, log in zip(forces, problem.logs)),
+            force=tuple(np.asarray(f) for f in forces),
+            counted=tuple(np.asarray(w) > 0 for w in problem.sample_weights),
+            segmentations=tuple(problem.segmentations))
 
     def _with(self, add: Sequence[str] = (), drop: Sequence[str] = ()) -> list[str]:
         """The confused effects of the final model without ``drop``, then ``add``."""

@@ -1,0 +1,152 @@
+"""What to record next when an unexplained structure follows one of two variables the logs
+cannot tell apart (issue 33's structure confusion): the two descriptions as rivals on a
+proposed program."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from fitstiff.diagnosis.structure import Structure
+from fitstiff.io.log import Log, Rig
+from fitstiff.planning.descriptions import DescribedPair, Residuals
+from fitstiff.planning.rivals import confusions, deferred
+from fitstiff.planning.separation import Noise, Outputs, Rival
+from fitstiff.segments.segmentation import segment
+
+from test_plan import _diagnosis
+
+SIGMA = 0.05
+RATE = 200.0
+
+
+def _triangle(seconds=12.0, amplitude=1e-3, speed=4e-3):
+    t = np.arange(int(seconds * RATE)) / RATE
+    period = 4 * amplitude / speed
+    phase = (t / period) % 1.0
+    x = amplitude * np.where(phase < 0.25, 4 * phase, np.where(
+        phase < 0.75, 2 - 4 * phase, 4 * phase - 4))
+    return t, x
+
+
+def _level(supply_bar):
+    """The residual's friction level at a supply (N): it follows the supply, not the
+    position (the final model's friction takes the level common to both logs)."""
+    return 0.15 * (supply_bar - 4.5)
+
+
+def _log(name, start_m, supply_bar, rng):
+    t, x = _triangle()
+    rig = Rig(bore=0.032, rod=0.0, stroke=0.7, start_position=start_m,
+              supply_pressure=supply_bar * 1e5)
+    probe = Log(name=name, displacement=x, force=np.zeros_like(x), time=t, rig=rig)
+    motion = np.asarray(segment(probe).direction, float)
+    residual = _level(supply_bar) * motion + SIGMA * rng.standard_normal(x.size)
+    # model force of 10 N s/m times the speed stands in for the final model's prediction
+    model = 10.0 * np.gradient(x, t)
+    return Log(name=name, displacement=x, force=model - residual, time=t, rig=rig), \
+        residual, model
+
+
+@pytest.fixture(scope="module")
+def apart():
+    """Two logs far apart along the stroke, each at its own supply: a friction level that
+    follows the supply reads as well as a curve along the position."""
+    rng = np.random.default_rng(3)
+    made = [_log("low", 0.20, 3.0, rng), _log("high", 0.50, 6.0, rng)]
+    logs = tuple(m[0] for m in made)
+    residuals = Residuals(logs=logs, residual=tuple(m[1] for m in made),
+                          force=tuple(m[2] for m in made),
+                          counted=tuple(np.ones(len(m[0]), bool) for m in made),
+                          segmentations=tuple(segment(log) for log in logs))
+    # a final model with no parameter left to refit: the descriptions alone decide
+    final = Rival("final", None, None, np.zeros(0, bool), np.zeros((0, 0)), np.zeros(0))
+    structure = Structure(variable="position", form="sign-dependent smooth", size_N=1.0,
+                          heldout_rms_before_N=1.0, heldout_rms_after_N=0.1, shrink=0.9,
+                          accepted=True, description="", suggestion="",
+                          confounded_with=("pressure",))
+    return (DescribedPair(structure, "pressure", residuals, final, Noise(SIGMA)), logs,
+            DescribedPair(structure, "log", residuals, final, Noise(SIGMA)))
+
+
+def _score(pair, template: Log, *, start_m, supply_bar):
+    t, x = _triangle(seconds=8.0)
+    rig = Rig(bore=0.032, rod=0.0, stroke=0.7, start_position=start_m,
+              supply_pressure=supply_bar * 1e5)
+    force = 10.0 * np.gradient(x, t)
+    program = Log(name="program", displacement=x, force=force, time=t, rig=rig)
+    on = pair.on(program, force)
+    n = x.size
+    sigma = pair.noise.scale(SIGMA)
+    ob = Outputs(y=force / sigma, jac=np.zeros((n, 0)),
+                 nuisance=np.column_stack([np.ones(n) / sigma, np.zeros(n)]))
+    return pair.separation(ob, on, n), on
+
+
+def test_the_rival_of_a_level_per_supply_is_a_line_in_the_supply(apart):
+    pair, *_ = apart
+    assert pair.names == ("position", "pressure")
+    assert pair.b.label == "sign-dependent linear"
+
+
+def test_the_same_positions_at_another_supply_separate_what_a_replay_cannot(apart):
+    """Replayed at its own supply, a log is predicted alike by both descriptions (they
+    describe the logs alike); at the other log's supply, the position predicts the level of
+    the log it was fitted on and the pressure the level of the new supply."""
+    pair, logs, _ = apart
+    replay, _ = _score(pair, logs[0], start_m=0.20, supply_bar=3.0)
+    moved, on = _score(pair, logs[0], start_m=0.20, supply_bar=6.0)
+    assert replay["z"] < 3.0 < moved["z"]
+    assert moved["z"] == pytest.approx(math.sqrt(min(moved["noncentrality_if"].values())))
+    # the two predictions: the level of the 3 bar log (position) and of 6 bar (pressure)
+    motion = np.sign(np.gradient(_triangle(seconds=8.0)[1]))
+    moving = motion != 0
+    level_a = np.median(on[0].f[moving] * motion[moving])
+    level_b = np.median(on[1].f[moving] * motion[moving])
+    assert level_a == pytest.approx(_level(3.0), rel=0.15)
+    assert level_b == pytest.approx(_level(6.0), rel=0.15)
+    # the other way round: the 6 bar log's positions at 3 bar
+    assert _score(pair, logs[1], start_m=0.50, supply_bar=3.0)[0]["z"] > 3.0
+    assert moved["z"] > 200
+
+
+def test_a_refit_that_can_take_the_difference_leaves_no_separation(apart):
+    """The new log's own columns are free in the refit: a level per log (the ``log``
+    variable) is taken by the new log whatever it is, so it cannot tell a line in the
+    supply from itself."""
+    _, logs, own = apart
+    assert own.b.label == "sign-dependent step"
+    s, on = _score(own, logs[0], start_m=0.20, supply_bar=6.0)
+    # the logs' own levels are shared (nothing of them on the program), the new log's free
+    assert on[1].own.shape[1] == 1 and np.all(on[1].shared == 0.0)
+    assert np.all(on[1].f == 0.0) and np.std(on[0].f) > 0.1
+    # a log of its own level: the position's prediction there is a level too, taken but
+    # for the wiggles of its fit (the same program separates the position from the supply
+    # at z above 200)
+    assert s["noncentrality_if"]["position"] < 3.0**2
+
+
+def test_a_confounded_structure_is_a_confusion_planned_before_undecided_candidates():
+    from fitstiff.diagnosis.result import Candidate
+
+    structure = Structure(variable="position", form="smooth", size_N=1.3,
+                          heldout_rms_before_N=1.5, heldout_rms_after_N=0.4, shrink=0.8,
+                          accepted=True, description="", suggestion="",
+                          confounded_with=("log", "pressure"))
+    lone = Structure(variable="velocity", form="smooth", size_N=0.3,
+                     heldout_rms_before_N=0.4, heldout_rms_after_N=0.3, shrink=0.5,
+                     accepted=True, description="", suggestion="")
+    d = _diagnosis([Candidate("pressure_friction", 30.0, 1, 1e-8, True,
+                              log_p_value=math.log(1e-8))])
+    d = type(d).from_dict(d.to_dict() | {"unexplained_structure": [
+        structure.to_dict(), lone.to_dict()]})
+    found = confusions(d)
+    assert [(c.kind, c.separates) for c in found] == [
+        ("structure", ("position", "log")), ("structure", ("position", "pressure")),
+        ("undecided", ("pressure_friction", "absent"))]
+    assert found[0].structure == d.unexplained_structure[0] and found[0].effects == ()
+    now, later = deferred(found)
+    assert [c.kind for c in now] == ["structure"] * 2 and [c.kind for c in later] == [
+        "undecided"]
