@@ -150,3 +150,81 @@ def test_a_confounded_structure_is_a_confusion_planned_before_undecided_candidat
     now, later = deferred(found)
     assert [c.kind for c in now] == ["structure"] * 2 and [c.kind for c in later] == [
         "undecided"]
+
+
+# -- a plan, end to end -----------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def friction_per_supply():
+    """Two logs far apart along the stroke, at 3 and 6 bar, whose seal's friction level
+    follows the supply (14 and 22 N): one Dahl friction fitted to both leaves a level per
+    log, which reads as well as a curve along the position."""
+    from fitstiff.physics.programs import TriangleCycles
+    from fitstiff.physics.simulate import Noise as SimNoise
+    from fitstiff.physics.simulate import simulate
+
+    logs = []
+    for k, (start, supply, fc) in enumerate(((0.25, 3e5, 14.0), (0.45, 6e5, 22.0))):
+        rig = Rig(bore=0.032, rod=0.0, stroke=0.7, start_position=start,
+                  supply_pressure=supply)
+        sim = simulate("chamber+dahl", TriangleCycles(amplitudes_mm=(0.3, 1.0, 2.0),
+                                                      rate_mm_s=4.0),
+                       rig=rig, params={"Fc": fc}, seed=k, rate_hz=100.0, name=f"log{k}",
+                       noise=SimNoise(force_N=0.1, displacement_um=0.0, pressure_mbar=0.0))
+        logs.append(sim.log)
+    return logs
+
+
+def test_a_plan_puts_a_logged_stretch_of_the_stroke_at_another_supply(friction_per_supply):
+    from fitstiff.diagnosis.result import Diagnosis
+    from fitstiff.planning import Limits, plan
+
+    logs = friction_per_supply
+    structure = Structure(variable="position", form="sign-dependent smooth", size_N=3.0,
+                          heldout_rms_before_N=4.0, heldout_rms_after_N=0.2, shrink=0.95,
+                          accepted=True, description="", suggestion="",
+                          confounded_with=("pressure",))
+    d = _diagnosis([])
+    d = Diagnosis.from_dict(d.to_dict() | {
+        "noise_N": {log.name: {"sigma_N": 0.1, "rho": 0.0} for log in logs},
+        "gap": {"heldout_rms_N": 4.0, "noise_N": 0.1, "final_heldout_rms_N": 4.0},
+        "unexplained_structure": [structure.to_dict()]})
+    limits = Limits.from_logs(logs, max_duration_s=8.0, pressures_bar=(3.0, 6.0))
+    result = plan(d, logs, limits=limits)
+    assert [(p.kind, p.separates) for p in result.programs] == [
+        ("structure", ("position", "pressure"))] * 2
+    first = result.programs[0]
+    e = first.expected
+    assert e["forms"] == {"position": "sign-dependent smooth",
+                          "pressure": "sign-dependent linear"}
+    assert e["z"] == pytest.approx(math.sqrt(min(e["noncentrality_if"].values())))
+    # replaying a log (its stretch at its own supply) hardly tells them apart; the plan's
+    # program puts a logged stretch of the stroke at the other log's supply
+    assert e["z"] > 3.0 and e["z"] > 5 * first.naive["z"]
+    spans = [(log.rig.start_position * 1e3, log.rig.supply_pressure / 1e5) for log in logs]
+    on_stretch = [s for s in spans if abs(first.start_position_mm - s[0]) < 5.0]
+    assert on_stretch and all(first.supply_bar != s[1] for s in on_stretch)
+    assert set(first.predicted_N) == {"position", "pressure"}
+    assert "follows the position or the pressure" in first.why
+
+
+def test_a_description_predicts_where_the_logs_hold_its_variable_only():
+    from fitstiff.diagnosis._structure_forms import Candidate
+    from fitstiff.planning.descriptions import supported
+
+    log_id = np.repeat([0, 1], 3)
+    train = np.ones(6, bool)
+
+    def cand(form, old, new):
+        values = np.concatenate([old, new]).astype(float)
+        return Candidate("v", form, False, values, np.ones_like(values))
+
+    # within a log's own range, not between two logs far apart nor beyond them
+    position = cand("smooth", [0, 0.5, 1, 5, 5.5, 6], [0.5, 3.0, 5.5, 7.0])
+    assert supported(position, log_id, train, 6).tolist() == [True, False, True, False]
+    # one level per log (a supply each): its line holds between the levels
+    pressure = cand("linear", [3, 3, 3, 6, 6, 6], [4.5, 3.0, 7.0])
+    assert supported(pressure, log_id, train, 6).tolist() == [True, True, False]
+    # a level per log is the new log's own: no range to leave
+    assert supported(cand("step", [0, 0, 0, 1, 1, 1], [2.0]), log_id, train, 6).all()
+    # samples that do not count do not give a range
+    assert not supported(position, log_id, np.r_[train[:3], False, False, False], 6)[2]

@@ -33,14 +33,15 @@ from collections.abc import Sequence
 import numpy as np
 
 from fitstiff.diagnosis._structure_basis import Design, fit_predict, ridge
-from fitstiff.diagnosis._structure_forms import Candidate, candidates, structure_variables
+from fitstiff.diagnosis._structure_forms import (Candidate, candidates, one_level_per_log,
+                                                 structure_variables)
 from fitstiff.diagnosis.structure import Structure
 from fitstiff.errors import InputError
 from fitstiff.io.log import Log
 from fitstiff.segments.segmentation import Segmentation, segment
 from fitstiff.planning.separation import Noise, Outputs, Rival, noncentrality, sizes
 
-__all__ = ["Described", "DescribedPair", "Residuals"]
+__all__ = ["Described", "DescribedPair", "Residuals", "supported"]
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -81,6 +82,8 @@ class _OnProgram:
     shared: np.ndarray
     information: np.ndarray
     own: np.ndarray
+    #: per program sample: whether the logs hold its value of the variable (:func:`supported`)
+    support: np.ndarray
 
 
 class DescribedPair:
@@ -174,13 +177,16 @@ class DescribedPair:
         shared, own = new[:, seen], new[:, ~seen]
         xs = old[:, seen] / self.sigma
         return _OnProgram(f=new @ beta, shared=shared, information=(xs.T * w) @ xs,
-                          own=own)
+                          own=own, support=supported(cand, log_id[:n_old], w > 0, n_old))
 
     def separation(self, ob: Outputs, on: tuple[_OnProgram, _OnProgram], n: int
                    ) -> dict[str, object]:
         """The separation of the two descriptions on a program: ``ob`` the final model's
         outputs on it (whitened, ``n`` force samples first), ``on`` :meth:`on`'s."""
         va, vb = on
+        known = va.support & vb.support
+        va, vb = (dataclasses.replace(v, f=v.f * known, shared=v.shared * known[:, None],
+                                      own=v.own * known[:, None]) for v in on)
         r = np.zeros(ob.y.size)
         r[:n] = (va.f - vb.f) / self.sigma
         # if a is true, b refits (and leaves lam[a] of the difference), and back
@@ -188,7 +194,7 @@ class DescribedPair:
                self.b.variable: self._left(-r, ob, va, n)}
         lam_min = min(lam.values())
         return {"objective": lam_min, "z": math.sqrt(lam_min), "noncentrality": lam_min,
-                "noncentrality_if": lam,
+                "noncentrality_if": lam, "supported_share": float(np.mean(known)),
                 "forms": {self.a.variable: self.a.label, self.b.variable: self.b.label},
                 "force_difference_rms_N": float(np.sqrt(np.mean((va.f - vb.f) ** 2)))}
 
@@ -210,3 +216,25 @@ class DescribedPair:
         jac = np.concatenate([ob.jac, shared], axis=1)
         scale = np.concatenate([sizes(self.final.values[self.final.free]), np.ones(k)])
         return noncentrality(r, jac, np.concatenate([ob.nuisance, own], axis=1), info, scale)
+
+
+def supported(cand: Candidate, log_id: np.ndarray, train: np.ndarray, n_old: int
+              ) -> np.ndarray:
+    """Per program sample (the rows of ``cand`` after the logs' ``n_old``): whether the logs
+    hold its value of the variable, so that a description predicts it rather than carries a
+    curve past the logs' ends. Within some log's range of the variable; between the lowest
+    and the highest level of a variable with one level per log (a supply pressure each: its
+    line interpolates); always for a step (a level per log, per direction)."""
+    new = cand.values[n_old:]
+    if cand.form == "step":
+        return np.ones(new.size, bool)
+    old = cand.values[:n_old]
+    ranges = [(float(old[m].min()), float(old[m].max()))
+              for k in np.unique(log_id) if (m := (log_id == k) & train).any()]
+    if not ranges:
+        return np.zeros(new.size, bool)
+    if one_level_per_log(old, log_id, train):
+        ranges = [(min(lo for lo, _ in ranges), max(hi for _, hi in ranges))]
+    tol = 1e-9 * max(1.0, max(abs(v) for r in ranges for v in r))
+    return np.any([(new >= lo - tol) & (new <= hi + tol) for lo, hi in ranges], axis=0)
+

@@ -3,9 +3,11 @@
 For each confusion of the diagnosis (:mod:`fitstiff.planning.rivals`), the rivals are fitted
 to the logs and every gridded program of the limits (:mod:`fitstiff.planning.families`) is
 scored by the separation that survives the rivals' refits
-(:mod:`fitstiff.planning.separation`): first every shape at the logs' median supply and at
-the allowed supply farthest from it, then the best shapes at every allowed supply and three
-start positions. The best program is kept, with the naive alternative of the same duration
+(:mod:`fitstiff.planning.separation`, or for a structure's variable against its rivals
+:mod:`fitstiff.planning.descriptions`): first every shape at the logs' median supply and at
+the allowed supply farthest from it, from a logged start position (the middle one), then the
+best shapes at every allowed supply and three start positions (and every logged start, for a
+structure). The best program is kept, with the naive alternative of the same duration
 (the longest log replayed) scored the same way for comparison. Deterministic: a grid, no
 random draws (``seed`` is recorded with the plan; nothing draws from it).
 """
@@ -416,7 +418,7 @@ def _search(scorer: _Scorer, limits: Limits, logs: Sequence[Log]
             ) -> list[tuple[Choice, dict[str, object]]]:
     """The :data:`RUNS` runs of a confusion with their scores (none when no program separates
     the rivals): every shape at two supplies, then the shortlist at every supply and three
-    start positions; the best, then the best of its shape at another condition."""
+    start positions (and the logged ones, for a structure); the best, then the best of its shape at another condition."""
     supplies = limits.pressures_bar
     logged = [log.rig.supply_pressure / BAR for log in logs
               if log.rig.supply_pressure is not None]
@@ -424,9 +426,11 @@ def _search(scorer: _Scorer, limits: Limits, logs: Sequence[Log]
     near = min(supplies, key=lambda p: abs(p - middle))
     far = max(supplies, key=lambda p: abs(p - middle))
     lo, hi = limits.stroke_range_mm
-    starts_logged = [log.rig.start_position / MM for log in logs
+    starts_logged = [float(np.clip(log.rig.start_position / MM, lo, hi)) for log in logs
                      if log.rig.start_position is not None]
-    home = float(np.clip(np.median(starts_logged), lo, hi)) if starts_logged else (lo + hi) / 2
+    # a logged start, the nearest the middle one (the median of an odd count)
+    home = (min(starts_logged, key=lambda s: abs(s - np.median(starts_logged)))
+            if starts_logged else (lo + hi) / 2)
     first = [choice for supply in dict.fromkeys((near, far))
              for choice in choices(limits, supply_bar=supply, start_position_mm=home)]
     scored: list[tuple[float, Choice, dict]] = [
@@ -441,6 +445,10 @@ def _search(scorer: _Scorer, limits: Limits, logs: Sequence[Log]
         if len(shapes) == _SHORTLIST:
             break
     positions = dict.fromkeys((home, lo + 0.25 * (hi - lo), hi - 0.25 * (hi - lo)))
+    if scorer.described is not None:
+        # a structure's description is known on the logged stretches of its variable only
+        # (:func:`~fitstiff.planning.descriptions.supported`): each logged start is a place
+        positions |= dict.fromkeys(starts_logged)
     seen = {(c.family, tuple(c.options.items()), c.supply_bar, c.start_position_mm)
             for _, c, _ in scored}
     shortlist = []
