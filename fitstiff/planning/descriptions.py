@@ -43,6 +43,10 @@ from fitstiff.planning.separation import Noise, Outputs, Rival, noncentrality, s
 
 __all__ = ["Described", "DescribedPair", "Residuals", "supported"]
 
+#: what :func:`structure_variables` gives besides the variables: the signs of the motion and
+#: of the model force's change, and the force's travel since it last turned
+_SIGNS = ("_motion", "_force", "_force_since_reversal")
+
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class Residuals:
@@ -76,7 +80,8 @@ class Described:
 class _OnProgram:
     """A description on a program: its prediction ``f`` (N, per program sample), its
     ``shared`` columns (N per unit of each) with the information the logs hold on them
-    (whitened), and its ``own`` columns (none of the logs' samples: free on new data)."""
+    (whitened), its ``own`` columns (none of the logs' samples: free on new data), and
+    where the logs support it."""
 
     f: np.ndarray
     shared: np.ndarray
@@ -113,6 +118,10 @@ class DescribedPair:
         return self.a.variable, self.b.variable
 
     def _stack(self, extra: Sequence[dict[str, np.ndarray]] = ()):
+        """The logs' variables and ``extra`` logs' (a program, whose residual is unknown) as
+        the structure step stacks them: per log the variables, per sample the log, whether
+        it counts, whether it trains (the logs' counted samples), the residual, and the
+        number of the logs' samples."""
         per_log = [*self._old, *extra]
         log_id = np.concatenate([np.full(next(iter(v.values())).size, k)
                                  for k, v in enumerate(per_log)])
@@ -152,7 +161,10 @@ class DescribedPair:
         seg = segment(program)
         extra = structure_variables(program, seg, np.asarray(model_force, float))
         per_log, log_id, counted, train, r, n_old = self._stack([extra])
-        cands = candidates(per_log, log_id)
+        # the two variables' candidates only (and the signs they are taken with)
+        keep = {self.a.variable, self.b.variable, *_SIGNS}
+        cands = candidates([{k: v for k, v in p.items() if k in keep} for p in per_log],
+                           log_id)
         return tuple(self._one(d, cands, log_id, counted, train, r, n_old)
                      for d in (self.a, self.b))
 
