@@ -228,3 +228,17 @@ def test_a_description_predicts_where_the_logs_hold_its_variable_only():
     assert supported(cand("step", [0, 0, 0, 1, 1, 1], [2.0]), log_id, train, 6).all()
     # samples that do not count do not give a range
     assert not supported(position, log_id, np.r_[train[:3], False, False, False], 6)[2]
+
+
+def test_what_each_description_leaves_of_the_logs_residual_is_reported(apart):
+    """Both describe a level per supply alike (the structure's curve a little closer, with
+    more columns); a level per log leaves as little: all three well below the residual."""
+    pair, logs, own = apart
+    rms = pair.rms_on_logs
+    assert set(rms) == {"final", "position", "pressure"}
+    assert rms["final"] == pytest.approx(0.225, rel=0.1)
+    for name in ("position", "pressure"):
+        assert rms[name] == pytest.approx(SIGMA, rel=0.2)
+    assert own.rms_on_logs["log"] == pytest.approx(SIGMA, rel=0.2)
+    s, _ = _score(pair, logs[0], start_m=0.20, supply_bar=6.0)
+    assert s["residual_rms_on_logs_N"] == rms

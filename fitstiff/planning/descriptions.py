@@ -112,6 +112,7 @@ class DescribedPair:
         label = structure.form.split(" (period")[0]
         self.a = Described(structure.variable, label, structure.period)
         self.b = self._best_form(rival)
+        self.rms_on_logs = self._rms_on_logs()
 
     @property
     def names(self) -> tuple[str, str]:
@@ -153,6 +154,22 @@ class DescribedPair:
             raise InputError(None, f"the structure's rival '{variable}'",
                              "has no description on these logs",
                              "plan the library's confusions with --separate instead")
+        return out
+
+    def _rms_on_logs(self) -> dict[str, float]:
+        """The RMS (N) of the final model's residual on the logs, and of what each
+        description leaves of it: a rival that leaves much more than the structure does
+        describes the logs worse, and the separation overstates what a program settles."""
+        per_log, log_id, counted, train, r, _ = self._stack()
+        w = counted * train
+        out = {"final": math.sqrt(float(np.sum(w * r**2) / np.sum(w)))}
+        for d in (self.a, self.b):
+            cand = next(c for c in candidates(per_log, log_id)
+                        if c.variable == d.variable and c.label == d.label)
+            design = Design(cand, log_id, counted)
+            x, pen = design.columns(train, d.period)
+            left = r - x @ ridge(x, r, pen, w)
+            out[d.variable] = math.sqrt(float(np.sum(w * left**2) / np.sum(w)))
         return out
 
     def on(self, program: Log, model_force: np.ndarray) -> tuple[_OnProgram, _OnProgram]:
@@ -208,6 +225,7 @@ class DescribedPair:
         return {"objective": lam_min, "z": math.sqrt(lam_min), "noncentrality": lam_min,
                 "noncentrality_if": lam, "supported_share": float(np.mean(known)),
                 "forms": {self.a.variable: self.a.label, self.b.variable: self.b.label},
+                "residual_rms_on_logs_N": dict(self.rms_on_logs),
                 "force_difference_rms_N": float(np.sqrt(np.mean((va.f - vb.f) ** 2)))}
 
     def _left(self, r: np.ndarray, ob: Outputs, refit: _OnProgram, n: int) -> float:
