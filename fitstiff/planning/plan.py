@@ -418,7 +418,8 @@ def _search(scorer: _Scorer, limits: Limits, logs: Sequence[Log]
             ) -> list[tuple[Choice, dict[str, object]]]:
     """The :data:`RUNS` runs of a confusion with their scores (none when no program separates
     the rivals): every shape at two supplies, then the shortlist at every supply and three
-    start positions (and the logged ones, for a structure); the best, then the best of its shape at another condition."""
+    start positions (and the logged ones, for a structure); the best, then the best of its
+    shape at another condition."""
     supplies = limits.pressures_bar
     logged = [log.rig.supply_pressure / BAR for log in logs
               if log.rig.supply_pressure is not None]
