@@ -165,8 +165,9 @@ def confusions(diagnosis: Diagnosis, *, separate: Sequence[str] | None = None
 
 def deferred(found: Sequence[Confusion]) -> tuple[list[Confusion], list[Confusion]]:
     """``found`` split into the confusions to plan first and those deferred: the undecided
-    ones, while a tie, a rival, an untestable effect or a confounded structure is there (:func:`~fitstiff.planning.plan`
-    plans the deferred ones when the logs settle all of those, or no program can).
+    ones, while a tie, a rival, an untestable effect or a confounded structure is there
+    (:func:`~fitstiff.planning.plan` plans the deferred ones when the logs settle all of
+    those, or no program can).
 
     What settles those comes first. A candidate significant on the final model while such a
     question stands may be its shadow: with one logged pressure, Maxwell-slip was significant
