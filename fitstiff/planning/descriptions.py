@@ -163,9 +163,9 @@ class DescribedPair:
         per_log, log_id, counted, train, r, _ = self._stack()
         w = counted * train
         out = {"final": math.sqrt(float(np.sum(w * r**2) / np.sum(w)))}
+        cands = candidates(per_log, log_id)
         for d in (self.a, self.b):
-            cand = next(c for c in candidates(per_log, log_id)
-                        if c.variable == d.variable and c.label == d.label)
+            cand = next(c for c in cands if c.variable == d.variable and c.label == d.label)
             design = Design(cand, log_id, counted)
             x, pen = design.columns(train, d.period)
             left = r - x @ ridge(x, r, pen, w)
