@@ -535,7 +535,7 @@ def test_a_pair_is_sought_only_among_candidates_that_lowered_the_held_out_rms_al
     alone predicts the left-out data no better than the current model is no such part. On a
     51 200-sample viscous set the pair step refitted Maxwell-slip (+3e-6 N held out) with a
     time delay (-0.006 N): a tenth of the diagnosis for a pair that could only rest on one
-    member. The strongest by score come first, at most ``MAX_REFITS`` of them."""
+    member. They are taken from the ``MAX_REFITS`` strongest by score."""
     from types import SimpleNamespace
 
     from fitstiff.diagnosis._choice import MAX_REFITS, partners
@@ -552,6 +552,8 @@ def test_a_pair_is_sought_only_among_candidates_that_lowered_the_held_out_rms_al
     many = {f"e{k}": tried(f"e{k}", -float(k), 0.20 - 0.001 * k) for k in range(6)}
     assert ([t.effect for t in partners(many, current)]
             == [f"e{k}" for k in (5, 4, 3)][:MAX_REFITS])
+    many["e4"] = tried("e4", -4.0, 0.21)      # a weaker one does not move up in its place
+    assert [t.effect for t in partners(many, current)] == ["e5", "e3"]
 
 
 @pytest.fixture(scope="module")

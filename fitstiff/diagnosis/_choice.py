@@ -102,9 +102,9 @@ def pair(sp: SuperProblem, folds, tried: Mapping[str, Tried], starts: FoldStarts
          hold, active, weights, *, current: HeldOut, noise: float, min_shrink: float
          ) -> Pair | None:
     """Two effects accepted together when none passes alone: the best pair of
-    :func:`partners` (the strongest refitted candidates that lowered the held-out RMS on their
-    own) that passes the rule together and lowers the held-out RMS by ``MIN_GAIN`` of the
-    noise below each of its members alone, or None.
+    :func:`partners` (the three strongest refitted candidates, less those that did not lower
+    the held-out RMS on their own) that passes the rule together and lowers the held-out RMS
+    by ``MIN_GAIN`` of the noise below each of its members alone, or None.
 
     Two effects that are both missing can each fail alone, the other's misfit spoiling the
     refit's transfer to a left-out log: pressure-dependent friction with a 2.3 kg inertia
@@ -135,16 +135,17 @@ def pair(sp: SuperProblem, folds, tried: Mapping[str, Tried], starts: FoldStarts
 
 
 def partners(tried: Mapping[str, Tried], current: HeldOut) -> list[Tried]:
-    """The refitted candidates a pair is sought among: the :data:`MAX_REFITS` strongest by
-    score whose refit converged and lowered the held-out RMS on its own. A pair is for two
-    missing effects that each explain part of the gap but fail the rule alone, the other's
-    misfit spoiling the transfer; a candidate that alone predicts the left-out data no
-    better than the current model is no such part, and a pair with it would rest on its
-    partner's gain (on a 51 200-sample viscous set, Maxwell-slip at +3e-6 N and a time delay
-    at -0.006 N were paired: four fold solves of 88 steps, a tenth of the diagnosis)."""
-    return sorted((v for v in tried.values()
-                   if v.heldout.converged and v.heldout.rms_N < current.rms_N),
-                  key=lambda v: v.score.log_p)[:MAX_REFITS]
+    """The refitted candidates a pair is sought among: of the :data:`MAX_REFITS` strongest
+    by score whose refit converged, those that lowered the held-out RMS on their own. A pair
+    is for two missing effects that each explain part of the gap but fail the rule alone,
+    the other's misfit spoiling the transfer; a candidate that alone predicts the left-out
+    data no better than the current model is no such part, and a pair with it would rest on
+    its partner's gain (on a 51 200-sample viscous set, Maxwell-slip at +3e-6 N and a time
+    delay at -0.006 N were paired: four fold solves of 88 steps, a tenth of the diagnosis).
+    A weaker candidate does not move up in its place: the pairs are a subset of before."""
+    top = sorted((v for v in tried.values() if v.heldout.converged),
+                 key=lambda v: v.score.log_p)[:MAX_REFITS]
+    return [v for v in top if v.heldout.rms_N < current.rms_N]
 
 
 def full_fit(sp: SuperProblem, s: Score, start: Start, active, weights) -> FullFit:
