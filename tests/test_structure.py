@@ -70,6 +70,51 @@ def test_a_ripple_along_the_stroke_is_described_by_position_with_its_period(logs
     assert first.heldout_rms_after_N < first.heldout_rms_before_N
 
 
+def test_logs_on_one_stretch_of_the_stroke_share_a_periods_phase():
+    """Logs whose ranges of the position overlap (directly or through another) are one
+    stretch; logs apart, or positions relative to each log's start, keep a phase each."""
+    from fitstiff.diagnosis._structure_forms import stretches
+
+    log_id = np.repeat([0, 1, 2, 3], 3)
+    v = np.array([0, 5, 10, 30, 35, 40, 8, 12, 20, 19, 25, 29.5], float)
+    assert stretches(v, log_id, True).tolist() == [0] * 3 + [1] * 3 + [0] * 3 + [0] * 3
+    v[9:] = (21, 25, 29.5)      # log 3 now starts past log 2's end: apart from the rest
+    assert stretches(v, log_id, True).tolist() == [0] * 3 + [2] * 3 + [0] * 3 + [1] * 3
+    assert stretches(v, log_id, False).tolist() == log_id.tolist()
+
+
+def _at(logs_, starts):
+    return [dataclasses.replace(log, rig=dataclasses.replace(log.rig, start_position=x))
+            for log, x in zip(logs_, starts)]
+
+
+def test_a_period_with_a_phase_of_its_own_in_each_log_is_not_a_ripple_of_the_bore(logs):
+    """A ripple of the bore is where it is: logs that travel one stretch see it in one
+    phase. A periodic shape with a phase of its own in each of them (a program's own
+    cycles, a per-log shape) is not described as one; the same ripple in phase is. Logs
+    apart keep a phase each, and the period is then reported as confounded with the log
+    and the supply pressure (one each), as a curve over ranges apart is."""
+    logs_, segs = logs
+    period = 0.7e-3
+    together = _at(logs_, (0.35, 0.35, 0.35))
+    ripple = [e + 0.25 * np.sin(2 * np.pi * log.position() / period)
+              for log, e in zip(together, _noise(logs_, 1))]
+    first = _first(_describe(together, segs, ripple))
+    assert first is not None and first.variable == "position", first
+    assert first.form.startswith("periodic") and first.confounded_with == ()
+    own = [e + 0.25 * np.sin(2 * np.pi * log.position() / period + phase)
+           for log, e, phase in zip(together, _noise(logs_, 1), (0.0, 2.1, 4.2))]
+    found = _describe(together, segs, own)
+    assert not any(s.accepted and s.form.startswith("periodic") for s in found), found
+    apart = _at(logs_, (0.15, 0.35, 0.55))
+    first = _first(_describe(apart, segs, [e + 0.25 * np.sin(2 * np.pi * log.position()
+                                                             / period + phase)
+                                           for log, e, phase in zip(apart, _noise(logs_, 1),
+                                                                    (0.0, 2.1, 4.2))]))
+    assert first is not None and first.form.startswith("periodic"), first
+    assert {"log", "pressure"} <= set(first.confounded_with)
+
+
 def test_friction_that_grows_during_each_log_is_described_by_time(logs):
     logs_, segs = logs
     r = [e + 0.4 * (log.time - log.time[0]) / log.duration * seg.direction

@@ -42,6 +42,14 @@ class Design:
         self.cand, self.log_id, self.weight = cand, log_id, weight
         self.n_logs = int(log_id.max()) + 1
         self.own = (log_id[:, None] == np.arange(self.n_logs)[None, :]).astype(float)
+        # a periodic description's phase groups (logs on one stretch of the stroke): per
+        # sample its group's column, and per group the logs in it
+        groups = cand.groups if cand.groups is not None else log_id
+        n_groups = int(groups.max()) + 1
+        self.phase = (groups[:, None] == np.arange(n_groups)[None, :]).astype(float)
+        group_of_log = np.zeros(self.n_logs, dtype=np.int64)
+        group_of_log[log_id] = groups
+        self._group_logs = (np.arange(n_groups)[:, None] == group_of_log[None, :]).astype(float)
         # the logs lie one after another: per-log sums are sums over these runs of rows
         self._starts = np.flatnonzero(np.r_[True, np.diff(log_id) != 0])
         total = self._per_log(weight)
@@ -59,17 +67,14 @@ class Design:
             base = np.column_stack([z, z**2])
             pen = np.zeros((2, 2))
         elif c.form == "step":
-            if c.variable == "direction":
-                base = v[:, None]
-            else:
-                base = (self.log_id[:, None] == np.arange(self.n_logs)[None, :]).astype(float)
+            base = v[:, None] if c.variable == "direction" else self.own
             pen = np.zeros((base.shape[1], base.shape[1]))
         elif c.form == "periodic":
-            # one period, a phase per log: logs far apart along the stroke would need the
-            # period to a part in 10^5 to share one phase
+            # one period, a phase and an amplitude per stretch of the stroke
+            # (:func:`~fitstiff.diagnosis._structure_forms.stretches`)
             phase = 2 * np.pi * v / period
-            base = np.concatenate([self.own * np.sin(phase)[:, None],
-                                   self.own * np.cos(phase)[:, None]], axis=1)
+            base = np.concatenate([self.phase * np.sin(phase)[:, None],
+                                   self.phase * np.cos(phase)[:, None]], axis=1)
             pen = np.zeros((base.shape[1], base.shape[1]))
         else:                       # smooth; a hysteresis is smooth in the force's travel
             knots = self._knots(v, train)
@@ -103,15 +108,19 @@ class Design:
 
     def period_rss(self, r: np.ndarray, wt: np.ndarray, periods: np.ndarray) -> np.ndarray:
         """The training RSS of the periodic description at each of ``periods`` at once:
-        its columns are a sine and a cosine per log, so the least squares fall apart into
-        a 2 x 2 system per log and period (what :meth:`columns` and :func:`ridge` give one
-        period at a time)."""
+        its columns are a sine and a cosine per stretch of the stroke, so the least squares
+        fall apart into a 2 x 2 system per stretch and period (what :meth:`columns` and
+        :func:`ridge` give one period at a time)."""
         phase = 2 * np.pi * self.cand.values[:, None] / periods[None, :]
         sign = self.cand.sign[:, None]
         sin, cos = self._centre(sign * np.sin(phase)), self._centre(sign * np.cos(phase))
         ws, wc = wt[:, None] * sin, wt[:, None] * cos
-        ss, cc, sc = self._per_log(ws * sin), self._per_log(wc * cos), self._per_log(ws * cos)
-        rs, rc = self._per_log(r[:, None] * ws), self._per_log(r[:, None] * wc)
+
+        def per_group(x):
+            return self._group_logs @ self._per_log(x)
+
+        ss, cc, sc = per_group(ws * sin), per_group(wc * cos), per_group(ws * cos)
+        rs, rc = per_group(r[:, None] * ws), per_group(r[:, None] * wc)
         det = ss * cc - sc**2
         ok = det > 1e-12 * np.maximum(ss * cc, 1e-300)
         safe = np.where(ok, det, 1.0)

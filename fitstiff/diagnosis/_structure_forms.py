@@ -15,7 +15,7 @@ from fitstiff.io.log import Log
 from fitstiff.segments.segmentation import Segmentation
 
 __all__ = ["VARIABLES", "UNITS", "Candidate", "candidates", "disjoint", "one_level_per_log",
-           "periods", "structure_variables"]
+           "periods", "phase_per_log", "stretches", "structure_variables"]
 
 #: what a residual can follow, in the order ties are broken (physical variables first)
 VARIABLES = ("position", "time", "pressure", "velocity", "since_reversal", "direction",
@@ -36,6 +36,8 @@ def structure_variables(log: Log, seg: Segmentation, model_force: np.ndarray
     out: dict[str, np.ndarray] = {}
     x0 = log.rig.start_position
     out["position"] = 1e3 * ((x0 or 0.0) + np.asarray(log.displacement))
+    # whether the position is along the stroke (the rig gives the start) or from the start
+    out["_absolute"] = np.full(n, float(x0 is not None))
     if log.time is not None:
         out["time"] = np.asarray(log.time) - float(log.time[0])
     if seg.pressure_level is not None:
@@ -84,6 +86,9 @@ class Candidate:
     signed: bool
     values: np.ndarray     # the variable, all samples (concatenated logs)
     sign: np.ndarray       # the sign multiplying the columns (ones when even)
+    #: per sample, the group of logs that share a periodic description's phase and
+    #: amplitude (:func:`stretches`); None for the other forms
+    groups: np.ndarray | None = None
 
     @property
     def label(self) -> str:
@@ -149,9 +154,36 @@ def candidates(per_log: Sequence[Mapping[str, np.ndarray]], log_id: np.ndarray
         for signed in (False, True):
             out.append(Candidate(name, "smooth", signed, v, sign if signed else ones))
         if name == "position" and periods(v, log_id).size:
+            absolute = cat("_absolute")
+            groups = stretches(v, log_id, absolute is not None and bool(np.all(absolute)))
             for signed in (False, True):
-                out.append(Candidate(name, "periodic", signed, v, sign if signed else ones))
+                out.append(Candidate(name, "periodic", signed, v, sign if signed else ones,
+                                     groups))
     return out
+
+
+def stretches(v: np.ndarray, log_id: np.ndarray, absolute: bool) -> np.ndarray:
+    """Per sample, its stretch of the stroke: logs whose ranges of the position ``v``
+    overlap (directly or through another log) form one, and a periodic description shares
+    its phase and amplitude within it: a ripple of the bore or the guide is where it is,
+    whichever log travels it. Logs apart keep a phase each (sharing one across a gap would
+    need the period to a part in 10^5), and so does every log when the positions are
+    relative to each log's start (``absolute`` False: where the logs lie is not known)."""
+    logs = np.unique(log_id)
+    group = {int(k): i for i, k in enumerate(logs)}
+    if absolute:
+        ranges = sorted((float(v[log_id == k].min()), float(v[log_id == k].max()), int(k))
+                        for k in logs)
+        end, current = -np.inf, -1
+        for lo, hi, k in ranges:
+            if lo > end:
+                current += 1
+            group[k] = current
+            end = max(end, hi)
+    lookup = np.zeros(int(logs.max()) + 1, dtype=np.int64)
+    for k, g in group.items():
+        lookup[k] = g
+    return lookup[log_id]
 
 
 def periods(v: np.ndarray, log_id: np.ndarray) -> np.ndarray:
@@ -171,6 +203,17 @@ def disjoint(v: np.ndarray, log_id: np.ndarray, counted: np.ndarray) -> bool:
     ranges = sorted((float(v[m].min()), float(v[m].max()))
                     for k in np.unique(log_id) if (m := (log_id == k) & counted).any())
     return len(ranges) >= 2 and all(a[1] < b[0] for a, b in zip(ranges, ranges[1:]))
+
+
+def phase_per_log(cand: Candidate, log_id: np.ndarray, counted: np.ndarray) -> bool:
+    """Whether a periodic description has a phase and an amplitude of its own in every log
+    (two logs or more, none sharing a stretch of the stroke): it is then as well a shape of
+    each log's own, as a curve over ranges that do not overlap is (:func:`disjoint`)."""
+    if cand.form != "periodic" or cand.groups is None:
+        return False
+    seen = [int(k) for k in np.unique(log_id[counted])]
+    groups = {int(cand.groups[np.flatnonzero((log_id == k) & counted)[0]]) for k in seen}
+    return len(seen) >= 2 and len(groups) == len(seen)
 
 
 def one_level_per_log(v: np.ndarray, log_id: np.ndarray, counted: np.ndarray) -> bool:

@@ -9,7 +9,8 @@ of a fixed vocabulary (:data:`VARIABLES`), and names the one that holds on held-
 **Descriptions.** For each variable: ``linear`` (one column), ``smooth`` (hat functions at
 ``KNOTS`` quantiles of ``v``, of each log's own for the position, a second-difference penalty
 chosen by generalised cross-validation), ``periodic`` (a sine and a cosine whose period is
-scanned; position only), ``step`` (one level per log, or per direction) and, for the force,
+scanned, their phase and amplitude shared by the logs that travel one stretch of the stroke;
+position only), ``step`` (one level per log, or per direction) and, for the force,
 ``hysteresis`` (smooth in the force's change since it last turned, times the direction of its
 change), each either **even** (the same in both directions of motion) or **sign-dependent**
 (times the direction of motion: a friction-like force). Every column is centred per log, so
@@ -32,8 +33,8 @@ prediction is taken off the residual and the rest is described again, up to
 or passing with at least ``RIVAL_GAIN`` of the winner's held-out gain) and predict the same
 thing (correlation above ``CONFOUNDED``) are its ``confounded_with``: the logs cannot tell
 those variables apart; so are ``log``, and any variable with one level per log (a supply
-pressure each), for a curve (not a period) of a variable whose ranges in the logs do not
-overlap (a curve of it is as well a shape per log).
+pressure each), for a curve of a variable whose ranges in the logs do not overlap, and for
+a period whose phase is every log's own (either is as well a shape per log).
 
 The rates are measured in the withheld-effect benchmark (``benchmarks/withheld.py``: nulls,
 datasets whose in-library effect was accepted, and the out-of-library family).
@@ -55,7 +56,8 @@ import numpy as np
 
 from fitstiff.diagnosis._structure_basis import Design, fit_predict
 from fitstiff.diagnosis._structure_forms import (VARIABLES, Candidate, candidates, disjoint,
-                                                 one_level_per_log, structure_variables)
+                                                 one_level_per_log, phase_per_log,
+                                                 structure_variables)
 from fitstiff.diagnosis._structure_record import LOOKALIKES, Structure, Trial, record, shown
 from fitstiff.inference.comparison import TIE
 from fitstiff.io.log import Log
@@ -259,9 +261,10 @@ def _round(data: _Samples, designs: Sequence[Design], r: np.ndarray, before: flo
                    and _corr(x.pred, chosen.pred, data.weight) > CONFOUNDED)
     apart: tuple[str, ...] = ()
     if (chosen.cand.form in ("linear", "smooth", "curved")
-            and disjoint(chosen.cand.values, data.log_id, data.counted)):
-        # a curve per log is as well a shape of each log's own, and of any variable that
-        # has one level per log (a supply pressure each)
+            and disjoint(chosen.cand.values, data.log_id, data.counted)
+            or phase_per_log(chosen.cand, data.log_id, data.counted)):
+        # a curve per log (or a phase per log) is as well a shape of each log's own, and of
+        # any variable that has one level per log (a supply pressure each)
         apart = ("log", *dict.fromkeys(
             c.variable for c in data.candidates if c.variable not in ("log", chosen.cand.variable)
             and one_level_per_log(c.values, data.log_id, data.counted)))
