@@ -43,13 +43,15 @@ class Design:
         self.n_logs = int(log_id.max()) + 1
         self.own = (log_id[:, None] == np.arange(self.n_logs)[None, :]).astype(float)
         # a periodic description's phase groups (logs on one stretch of the stroke): per
-        # sample its group's column, and per group the logs in it
-        groups = cand.groups if cand.groups is not None else log_id
-        n_groups = int(groups.max()) + 1
-        self.phase = (groups[:, None] == np.arange(n_groups)[None, :]).astype(float)
-        group_of_log = np.zeros(self.n_logs, dtype=np.int64)
-        group_of_log[log_id] = groups
-        self._group_logs = (np.arange(n_groups)[:, None] == group_of_log[None, :]).astype(float)
+        # sample its group's column, and per group the logs in it (a log each by default)
+        self.phase, self._group_logs = self.own, np.eye(self.n_logs)
+        if cand.groups is not None:
+            n_groups = int(cand.groups.max()) + 1
+            self.phase = (cand.groups[:, None] == np.arange(n_groups)[None, :]).astype(float)
+            group_of_log = np.zeros(self.n_logs, dtype=np.int64)
+            group_of_log[log_id] = cand.groups
+            self._group_logs = (np.arange(n_groups)[:, None]
+                                == group_of_log[None, :]).astype(float)
         # the logs lie one after another: per-log sums are sums over these runs of rows
         self._starts = np.flatnonzero(np.r_[True, np.diff(log_id) != 0])
         total = self._per_log(weight)
