@@ -135,6 +135,22 @@ def test_a_friction_level_per_log_cannot_be_told_from_the_pressure_of_one_log_ea
     assert "cannot tell" in first.suggestion
 
 
+
+def test_a_friction_level_linear_in_the_supply_is_described_by_the_pressure(logs):
+    """Left out log by log, a friction level linear in the supply pressure leaves each log
+    its level less the mean of the others': a line in the pressure whose zero is not the
+    samples' mean pressure (the logs differ in length), so the line needs its own level.
+    One line (two parameters) is then fewer than a level per log, and the log a rival."""
+    logs_, segs = logs
+    p = np.array([seg.pressure_level / 1e5 for seg in segs])
+    assert np.unique(np.round(p, 3)).size == 3
+    level = 0.3 * p
+    left_out = [level[k] - np.delete(level, k).mean() for k in range(p.size)]
+    r = [e + a * seg.direction for a, seg, e in zip(left_out, segs, _noise(logs_, 4))]
+    first = _first(_describe(logs_, segs, r))
+    assert first is not None and first.variable == "pressure", first
+    assert first.form == "sign-dependent linear" and "log" in first.confounded_with
+
 def test_a_described_residual_is_described_once(logs):
     # after the accepted description, what is left is noise: nothing more is accepted
     logs_, segs = logs

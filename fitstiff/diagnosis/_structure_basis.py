@@ -61,13 +61,14 @@ class Design:
                 ) -> tuple[np.ndarray, np.ndarray]:
         c = self.cand
         v = c.values
-        if c.form == "linear":
-            base = v[:, None] - np.mean(v[train])
-            pen = np.zeros((1, 1))
-        elif c.form == "curved":
+        if c.form in ("linear", "curved"):
+            # a law a + b z (+ c z^2) of the variable; centring each log takes the constant
+            # off an even law, but a signed one keeps it (a friction level times the
+            # direction): where its zero lies is fitted, not fixed at the training mean
             z = v - np.mean(v[train])
-            base = np.column_stack([z, z**2])
-            pen = np.zeros((2, 2))
+            base = np.column_stack(([np.ones_like(z)] if c.signed else [])
+                                   + [z] + ([z**2] if c.form == "curved" else []))
+            pen = np.zeros((base.shape[1], base.shape[1]))
         elif c.form == "step":
             base = v[:, None] if c.variable == "direction" else self.own
             pen = np.zeros((base.shape[1], base.shape[1]))
