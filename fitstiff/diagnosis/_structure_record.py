@@ -196,12 +196,15 @@ def record(x: Trial, relative: bool, noise: float, *, accepted: bool, round_: in
     effects, to_record = _SUGGEST.get((c.variable, c.signed), _SUGGEST.get(
         (c.variable, not c.signed), ("", "")))
     suggestion = (f"Usually {effects}; to pin it down, {to_record}" if effects else "")
-    if rivals:
-        suggestion += (f". The logs cannot tell it from {', '.join(rivals)} (the same "
+    # each rival once, with the reason that says what to record: a variable whose logs lie
+    # apart is told from the curve by two logs over one range, whatever else it shares
+    same = tuple(v for v in rivals if v not in apart)
+    if same:
+        suggestion += (f". The logs cannot tell it from {', '.join(same)} (the same "
                        "prediction): record data that vary them separately")
-    alike = tuple(v for v in apart if v not in rivals)
+    alike = tuple(apart)
     if alike:
-        rivals += alike
+        rivals += tuple(v for v in alike if v not in rivals)
         per_log = [v.replace("_", " ") for v in alike if v != "log"]
         suggestion += (f". The logs cannot tell it from {', '.join(alike)}: no two logs share a "
                        f"range of the {c.variable.replace('_', ' ')}, so the curve is as well "

@@ -165,10 +165,8 @@ class DescribedPair:
         out = {"final": math.sqrt(float(np.sum(w * r**2) / np.sum(w)))}
         cands = candidates(per_log, log_id)
         for d in (self.a, self.b):
-            cand = next(c for c in cands if c.variable == d.variable and c.label == d.label)
-            design = Design(cand, log_id, counted)
-            x, pen = design.columns(train, d.period)
-            left = r - x @ ridge(x, r, pen, w)
+            cand, x, beta = _fitted(d, cands, log_id, counted, train, r)
+            left = r - x @ beta
             out[d.variable] = math.sqrt(float(np.sum(w * left**2) / np.sum(w)))
         return out
 
@@ -187,19 +185,7 @@ class DescribedPair:
 
     def _one(self, d: Described, cands: Sequence[Candidate], log_id, counted, train, r,
              n_old) -> _OnProgram:
-        cand = next((c for c in cands if c.variable == d.variable and c.label == d.label),
-                    None)
-        if cand is None:
-            raise InputError(None, f"the description '{d.label}' of {d.variable}",
-                             "cannot be evaluated on the program",
-                             "the program lacks what the variable needs (a time base, "
-                             "a supply pressure)")
-        design = Design(cand, log_id, counted)
-        period = d.period
-        if cand.form == "periodic" and period is None:
-            period = fit_predict(design, r, train, counted).period
-        x, pen = design.columns(train, period)
-        beta = ridge(x, r, pen, counted * train)
+        cand, x, beta = _fitted(d, cands, log_id, counted, train, r)
         old, new = x[:n_old], x[n_old:]
         w = (counted * train)[:n_old]
         seen = np.any(old[w > 0] != 0.0, axis=0)
@@ -268,3 +254,21 @@ def supported(cand: Candidate, log_id: np.ndarray, train: np.ndarray, n_old: int
     tol = 1e-9 * max(1.0, max(abs(v) for r in ranges for v in r))
     return np.any([(new >= lo - tol) & (new <= hi + tol) for lo, hi in ranges], axis=0)
 
+
+def _fitted(d: Described, cands: Sequence[Candidate], log_id: np.ndarray, counted: np.ndarray,
+            train: np.ndarray, r: np.ndarray) -> tuple[Candidate, np.ndarray, np.ndarray]:
+    """The candidate of ``d`` among ``cands``, its columns on every sample and its
+    coefficients fitted to ``r`` on the ``train`` samples (a periodic one's period fitted
+    there when ``d`` keeps none)."""
+    cand = next((c for c in cands if c.variable == d.variable and c.label == d.label), None)
+    if cand is None:
+        raise InputError(None, f"the description '{d.label}' of {d.variable}",
+                         "cannot be evaluated on the program",
+                         "the program lacks what the variable needs (a time base, "
+                         "a supply pressure)")
+    design = Design(cand, log_id, counted)
+    period = d.period
+    if cand.form == "periodic" and period is None:
+        period = fit_predict(design, r, train, counted).period
+    x, pen = design.columns(train, period)
+    return cand, x, ridge(x, r, pen, counted * train)
