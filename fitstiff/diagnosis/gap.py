@@ -25,7 +25,8 @@ import pandas as pd
 from fitstiff.segments.segmentation import Segmentation
 from fitstiff.signal.noise import NoiseFloor
 
-__all__ = ["region_table", "region_summary", "above_floor", "pooled_excess", "Z_ABOVE", "EXCESS_ABOVE"]
+__all__ = ["region_table", "region_summary", "above_floor", "pooled_excess", "Z_ABOVE",
+           "EXCESS_ABOVE"]
 
 Z_ABOVE = 3.0
 EXCESS_ABOVE = 1.1
