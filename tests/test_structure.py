@@ -135,7 +135,6 @@ def test_a_friction_level_per_log_cannot_be_told_from_the_pressure_of_one_log_ea
     assert "cannot tell" in first.suggestion
 
 
-
 def test_a_friction_level_linear_in_the_supply_is_described_by_the_pressure(logs):
     """Left out log by log, a friction level linear in the supply pressure leaves each log
     its level less the mean of the others': a line in the pressure whose zero is not the
@@ -150,6 +149,7 @@ def test_a_friction_level_linear_in_the_supply_is_described_by_the_pressure(logs
     first = _first(_describe(logs_, segs, r))
     assert first is not None and first.variable == "pressure", first
     assert first.form == "sign-dependent linear" and "log" in first.confounded_with
+
 
 def test_a_described_residual_is_described_once(logs):
     # after the accepted description, what is left is noise: nothing more is accepted

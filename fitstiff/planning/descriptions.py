@@ -165,7 +165,7 @@ class DescribedPair:
         out = {"final": math.sqrt(float(np.sum(w * r**2) / np.sum(w)))}
         cands = candidates(per_log, log_id)
         for d in (self.a, self.b):
-            cand, x, beta = _fitted(d, cands, log_id, counted, train, r)
+            _, x, beta = _fitted(d, cands, log_id, counted, train, r)
             left = r - x @ beta
             out[d.variable] = math.sqrt(float(np.sum(w * left**2) / np.sum(w)))
         return out
