@@ -202,11 +202,10 @@ def record(x: Trial, relative: bool, noise: float, *, accepted: bool, round_: in
     if same:
         suggestion += (f". The logs cannot tell it from {', '.join(same)} (the same "
                        "prediction): record data that vary them separately")
-    alike = tuple(apart)
-    if alike:
-        rivals += tuple(v for v in alike if v not in rivals)
-        per_log = [v.replace("_", " ") for v in alike if v != "log"]
-        suggestion += (f". The logs cannot tell it from {', '.join(alike)}: no two logs share a "
+    if apart:
+        rivals += tuple(v for v in apart if v not in rivals)
+        per_log = [v.replace("_", " ") for v in apart if v != "log"]
+        suggestion += (f". The logs cannot tell it from {', '.join(apart)}: no two logs share a "
                        f"range of the {c.variable.replace('_', ' ')}, so the curve is as well "
                        "a shape of each log's own"
                        + (f" (and each log has its own {', '.join(per_log)})" if per_log else "")

@@ -111,8 +111,11 @@ class DescribedPair:
         self.sigma = noise.scale(noise.sigma_N)
         label = structure.form.split(" (period")[0]
         self.a = Described(structure.variable, label, structure.period)
-        self.b = self._best_form(rival)
-        self.rms_on_logs = self._rms_on_logs()
+        # the logs' samples and their candidate descriptions, built once for both steps
+        stack = self._stack()
+        cands = candidates(stack[0], stack[1])
+        self.b = self._best_form(rival, stack, cands)
+        self.rms_on_logs = self._rms_on_logs(stack, cands)
 
     @property
     def names(self) -> tuple[str, str]:
@@ -136,12 +139,12 @@ class DescribedPair:
         r = np.where(train, r, 0.0)
         return per_log, log_id, counted, train, r, n_old
 
-    def _best_form(self, variable: str) -> Described:
+    def _best_form(self, variable: str, stack, cands: Sequence[Candidate]) -> Described:
         """The form of ``variable`` that describes the logs' residual best (the least
         ``n log(RSS / n) + 2 dof``, as a form with more columns must earn them)."""
-        per_log, log_id, counted, train, r, _ = self._stack()
+        _, log_id, counted, train, r, _ = stack
         best, out = math.inf, None
-        for cand in candidates(per_log, log_id):
+        for cand in cands:
             if cand.variable != variable:
                 continue
             fit = fit_predict(Design(cand, log_id, counted), r, train, counted)
@@ -156,14 +159,13 @@ class DescribedPair:
                              "plan the library's confusions with --separate instead")
         return out
 
-    def _rms_on_logs(self) -> dict[str, float]:
+    def _rms_on_logs(self, stack, cands: Sequence[Candidate]) -> dict[str, float]:
         """The RMS (N) of the final model's residual on the logs, and of what each
         description leaves of it: a rival that leaves much more than the structure does
         describes the logs worse, and the separation overstates what a program settles."""
-        per_log, log_id, counted, train, r, _ = self._stack()
+        _, log_id, counted, train, r, _ = stack
         w = counted * train
         out = {"final": math.sqrt(float(np.sum(w * r**2) / np.sum(w)))}
-        cands = candidates(per_log, log_id)
         for d in (self.a, self.b):
             _, x, beta = _fitted(d, cands, log_id, counted, train, r)
             left = r - x @ beta
