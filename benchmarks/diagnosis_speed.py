@@ -21,8 +21,10 @@ counted, grouped by the candidates it frees (where the refits' time goes).
 from __future__ import annotations
 
 import argparse
+import atexit
 import json
 import os
+import shutil
 import tempfile
 import time
 from pathlib import Path
@@ -65,7 +67,10 @@ def main() -> None:
                         help="time every solve and count its steps, by the candidates it frees")
     args = parser.parse_args()
     # cold: no persistent compilation cache for the first call
-    os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", tempfile.mkdtemp())
+    if "JAX_COMPILATION_CACHE_DIR" not in os.environ:
+        cache = tempfile.mkdtemp(prefix="fitstiff-speed-cache-")
+        atexit.register(shutil.rmtree, cache, ignore_errors=True)
+        os.environ["JAX_COMPILATION_CACHE_DIR"] = cache
     import jax
 
     from fitstiff.diagnosis import diagnose

@@ -205,19 +205,21 @@ def main(argv=None) -> int:
         _save(args.json, result)
 
     if args.end_to_end:
-        tmp = Path(tempfile.mkdtemp(prefix="fleet-gpu-e2e-"))
-        base = dict(os.environ, XLA_PYTHON_CLIENT_PREALLOCATE="false")
-        runs = {"cpu": _end_to_end(args.data, tmp, env=dict(base, JAX_PLATFORMS="cpu"),
-                                   flags=[])}
-        result["end_to_end"] = runs
-        _save(args.json, result)
-        if "gpu" in backends:
-            for layout in args.gpu_layouts:
-                workers, lanes = (int(x) for x in layout.split("x"))
-                runs[f"gpu {layout}"] = _end_to_end(
-                    args.data, tmp, env=base, flags=["--workers", str(workers), "--lanes",
-                                                     str(lanes), "--chunk", str(lanes)])
-                _save(args.json, result)
+        runs = result["end_to_end"] = {}
+        # the commands' output folders go with the run (only the figures are kept)
+        with tempfile.TemporaryDirectory(prefix="fleet-gpu-e2e-") as tmp:
+            tmp = Path(tmp)
+            base = dict(os.environ, XLA_PYTHON_CLIENT_PREALLOCATE="false")
+            runs["cpu"] = _end_to_end(args.data, tmp, env=dict(base, JAX_PLATFORMS="cpu"),
+                                      flags=[])
+            _save(args.json, result)
+            if "gpu" in backends:
+                for layout in args.gpu_layouts:
+                    workers, lanes = (int(x) for x in layout.split("x"))
+                    runs[f"gpu {layout}"] = _end_to_end(
+                        args.data, tmp, env=base, flags=["--workers", str(workers), "--lanes",
+                                                         str(lanes), "--chunk", str(lanes)])
+                    _save(args.json, result)
         cpu = np.array(runs["cpu"].get("breakaway", []))
         for key, run in runs.items():
             if "breakaway" in run and cpu.size:

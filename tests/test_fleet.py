@@ -402,11 +402,15 @@ def test_local_workers_leave_the_platform_to_jax_only_for_batches(monkeypatch):
 
 
 @pytest.mark.slow
-def test_fleet_gpu_benchmark_runs_small(tmp_path):
+def test_fleet_gpu_benchmark_runs_small(tmp_path, monkeypatch):
     """benchmarks/fleet_gpu.py on a CPU-only machine, small: one at a time and batched, and
-    the command end to end; the batched and the single fits find the same cylinders."""
+    the command end to end; the batched and the single fits find the same cylinders. The
+    end-to-end runs' output folders do not outlive the benchmark."""
     from conftest import run_benchmark
 
+    scratch = tmp_path / "scratch"
+    scratch.mkdir()
+    monkeypatch.setenv("TMPDIR", str(scratch))
     out = tmp_path / "fg.json"
     run_benchmark("fleet_gpu.py", "--cylinders", "3", "--samples", "1500", "--single", "2",
                   "--cpu-lanes", "3", "--end-to-end", "--data", tmp_path / "fleet",
@@ -418,3 +422,4 @@ def test_fleet_gpu_benchmark_runs_small(tmp_path):
     assert cpu["batched_vs_cpu_single_max_rel"] < 1e-6
     assert r["end_to_end"]["cpu"]["rc"] == 0 and r["end_to_end"]["cpu"]["units"] == 3
     assert r["end_to_end"]["cpu"]["breakaway_max_rel_vs_cpu"] == 0.0
+    assert not [p.name for p in scratch.iterdir() if p.name.startswith("fleet-gpu-e2e-")]
