@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 from pathlib import Path
 
 from fitstiff.diagnosis import MIN_SHRINK
@@ -63,7 +64,8 @@ def main(argv=None) -> None:
         for r in refits(record):
             if r["accepted"] or r["round"] != last:
                 continue
-            row = (r["gain"], r["shrink"], key, r["effect"], r["round"])
+            row = (r["gain"], r["shrink"], key, r["effect"], r["round"],
+                   _log10_p(record, r["effect"]))
             if r["effect"] in record["expected"]:
                 left_out.append(row)
             else:
@@ -75,16 +77,29 @@ def main(argv=None) -> None:
         mend = [r for r in left_out if r[0] >= t and r[1] >= args.min_shrink]
         wrong = [r for r in spurious if r[0] >= t and r[1] >= args.min_shrink]
         print(f"{t:>11.3f} {len(mend):>16d} {len(wrong):>17d}   "
-              + ", ".join(f"+{k} {e}" for _, _, k, e, _ in mend)
+              + ", ".join(f"+{k} {e}" for _, _, k, e, _, _ in mend)
               + ("; " if mend and wrong else "")
-              + ", ".join(f"-{k} {e} (round {n})" for _, _, k, e, n in wrong))
-    print("\nwithheld effects refitted and left out (gain as a share of the floor, shrink):")
-    for gain, shrink, key, effect, n in sorted(left_out, reverse=True):
-        print(f"  {gain:7.3f} {shrink:6.2f}  {key} {effect} (round {n})")
+              + ", ".join(f"-{k} {e} (round {n})" for _, _, k, e, n, _ in wrong))
+    print("\nwithheld effects refitted and left out (gain as a share of the floor, shrink, "
+          "log10 p of the screen where the record ranks it):")
+    for gain, shrink, key, effect, n, lp in sorted(left_out, reverse=True):
+        print(f"  {gain:7.3f} {shrink:6.2f} {_shown(lp):>7}  {key} {effect} (round {n})")
     print(f"\nspurious refits with shrink >= {args.min_shrink} (the largest gains):")
-    for gain, shrink, key, effect, n in sorted(
+    for gain, shrink, key, effect, n, lp in sorted(
             (r for r in spurious if r[1] >= args.min_shrink), reverse=True)[:12]:
-        print(f"  {gain:7.3f} {shrink:6.2f}  {key} {effect} (round {n})")
+        print(f"  {gain:7.3f} {shrink:6.2f} {_shown(lp):>7}  {key} {effect} (round {n})")
+
+
+def _log10_p(record: dict, effect: str) -> float | None:
+    """log10 of the effect's screen p-value as the record ranks it (its top five only)."""
+    for c in record.get("ranked", []):
+        if c["effect"] == effect and c.get("log_p_value") is not None:
+            return c["log_p_value"] / math.log(10)
+    return None
+
+
+def _shown(log10_p: float | None) -> str:
+    return "-" if log10_p is None else f"{log10_p:.0f}"
 
 
 if __name__ == "__main__":
