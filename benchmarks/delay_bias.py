@@ -27,33 +27,7 @@ from __future__ import annotations
 import argparse
 import json
 import time
-import zlib
 from pathlib import Path
-
-import numpy as np
-
-
-def _sweep_log(truth, t, x, *, start_mm: float, supply_bar: float, clean: bool):
-    """The sweep ``(t, x)`` played on the dataset's rig (as ``simulate_program`` plays a
-    planned program), with or without sensor noise."""
-    from fitstiff._testing import rig_sim as rs
-    from fitstiff._testing.withheld import SUBSTEPS
-
-    substeps = int(truth.get("substeps", SUBSTEPS))
-    fine = rs.rounded(*rs.piecewise_linear_fine(t, x, substeps))
-    b, n = truth["base"], truth["noise"]
-    base = rs.Base(sigma0=b["sigma0_N_per_mm"] * 1e3, Fc=b["Fc_N"], n=b["n"],
-                   x0=start_mm * 1e-3, supply=supply_bar * 1e5, dead_a=b["dead_a_mm"] * 1e-3,
-                   dead_b=b["dead_b_mm"] * 1e-3, chamber=truth["baseline"] != "dahl")
-    noise = rs.SensorNoise(force_N=n["force_N"], ar1=n["ar1"],
-                           displacement_um=n.get("displacement_um", 0.7),
-                           quantum_um=n["quantum_um"], pressure_mbar=n["pressure_mbar"])
-    rng = np.random.default_rng([zlib.crc32(f"{truth['id']}/planned_0".encode()), 0])
-    log, _ = rs.simulate_log(rs.Program(()), base=base, effects=truth["effects"], noise=noise,
-                             rate_hz=1.0 / float(np.median(np.diff(t))), substeps=substeps,
-                             rng=rng, name="planned_0", p_ref=float(truth["p_ref_Pa"]),
-                             out_of_library=truth["out_of_library"], fine=fine, clean=clean)
-    return log
 
 
 def _fits(log, baseline: str, *, denoise: bool) -> dict[str, object]:
@@ -73,7 +47,7 @@ def _fits(log, baseline: str, *, denoise: bool) -> dict[str, object]:
 
 def main(argv=None) -> None:
     from fitstiff._testing.plan_loop import LOOP_LIMITS
-    from fitstiff._testing.withheld import make_dataset
+    from fitstiff._testing.withheld import make_dataset, simulate_program
     from fitstiff.planning.families import Choice, Limits
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -92,15 +66,21 @@ def main(argv=None) -> None:
                     args.supply_bar, start_mm)
     t, x = choice.sample(limits)
     rows = {}
-    clean = _sweep_log(truth, t, x, start_mm=start_mm, supply_bar=args.supply_bar, clean=True)
+
+    def sweep(clean: bool):
+        # as the closed loop plays a planned program (its first run's noise)
+        return simulate_program(truth, t, x, supply_bar=args.supply_bar,
+                                start_position_mm=start_mm, name="planned_0", clean=clean)
+
+    clean = sweep(True)
     rows["clean"] = _fits(clean, truth["baseline"], denoise=True)
     rows["clean, raw displacement"] = _fits(clean, truth["baseline"], denoise=False)
-    noisy = _sweep_log(truth, t, x, start_mm=start_mm, supply_bar=args.supply_bar, clean=False)
+    noisy = sweep(False)
     rows["noisy"] = _fits(noisy, truth["baseline"], denoise=True)
     rows["noisy, raw displacement"] = _fits(noisy, truth["baseline"], denoise=False)
     sensor = dict(truth["noise"])
     truth["noise"] = dict(truth["noise"], displacement_um=0.0, quantum_um=0.0)
-    exact = _sweep_log(truth, t, x, start_mm=start_mm, supply_bar=args.supply_bar, clean=False)
+    exact = sweep(False)
     rows["force noise only"] = _fits(exact, truth["baseline"], denoise=True)
     rows["force noise only, raw displacement"] = _fits(exact, truth["baseline"], denoise=False)
     report = {"id": args.id, "program": choice.describe(), "supply_bar": args.supply_bar,

@@ -269,11 +269,12 @@ def make_dataset(dataset_id: str, *, rate_scale: float = 1.0, substeps: int = SU
 
 def simulate_program(truth: Mapping[str, object], time_s: np.ndarray, displacement_m: np.ndarray,
                      *, supply_bar: float, start_position_mm: float, name: str,
-                     seed: int = 0) -> Log:
+                     seed: int = 0, clean: bool = False) -> Log:
     """One more log of a dataset: the displacement setpoints ``(time_s, displacement_m)`` (a
-    planned program's CSV) played on the dataset's rig with its truth and noise, through the
-    independent simulator. The rig follows the setpoints linearly between them, its corners
-    rounded as :func:`~fitstiff._testing.rig_sim.render` rounds them."""
+    planned program's CSV) played on the dataset's rig with its truth and noise (none when
+    ``clean``), through the independent simulator. The rig follows the setpoints linearly
+    between them, its corners rounded as :func:`~fitstiff._testing.rig_sim.render` rounds
+    them."""
     substeps = int(truth.get("substeps", SUBSTEPS))
     t = np.asarray(time_s, float)
     rate = 1.0 / float(np.median(np.diff(t)))
@@ -291,5 +292,5 @@ def simulate_program(truth: Mapping[str, object], time_s: np.ndarray, displaceme
     log, _ = rs.simulate_log(rs.Program(()), base=base, effects=truth["effects"], noise=noise,
                              rate_hz=rate, substeps=substeps, rng=rng, name=name,
                              p_ref=float(truth["p_ref_Pa"]),
-                             out_of_library=truth["out_of_library"], fine=fine)
+                             out_of_library=truth["out_of_library"], fine=fine, clean=clean)
     return log
