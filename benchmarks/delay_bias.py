@@ -67,9 +67,9 @@ def main(argv=None) -> None:
     t, x = choice.sample(limits)
     rows = {}
 
-    def sweep(clean: bool):
+    def sweep(clean: bool, rig_truth=truth):
         # as the closed loop plays a planned program (its first run's noise)
-        return simulate_program(truth, t, x, supply_bar=args.supply_bar,
+        return simulate_program(rig_truth, t, x, supply_bar=args.supply_bar,
                                 start_position_mm=start_mm, name="planned_0", clean=clean)
 
     clean = sweep(True)
@@ -78,13 +78,12 @@ def main(argv=None) -> None:
     noisy = sweep(False)
     rows["noisy"] = _fits(noisy, truth["baseline"], denoise=True)
     rows["noisy, raw displacement"] = _fits(noisy, truth["baseline"], denoise=False)
-    sensor = dict(truth["noise"])
-    truth["noise"] = dict(truth["noise"], displacement_um=0.0, quantum_um=0.0)
-    exact = sweep(False)
+    exact_input = dict(truth["noise"], displacement_um=0.0, quantum_um=0.0)
+    exact = sweep(False, dict(truth, noise=exact_input))
     rows["force noise only"] = _fits(exact, truth["baseline"], denoise=True)
     rows["force noise only, raw displacement"] = _fits(exact, truth["baseline"], denoise=False)
     report = {"id": args.id, "program": choice.describe(), "supply_bar": args.supply_bar,
-              "rate_hz": limits.rate_hz, "samples": int(t.size), "noise": sensor,
+              "rate_hz": limits.rate_hz, "samples": int(t.size), "noise": truth["noise"],
               "fits": rows, "wall_s": time.perf_counter() - start}
     for name, r in rows.items():
         se, z = r["delay_stderr_ms"], r["z"]
