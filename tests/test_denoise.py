@@ -252,3 +252,47 @@ def test_noise_floor_solves_its_grid_as_a_scan_of_it_would():
         found = noise_floor(x)
         assert found.rho == pytest.approx(rho_scan, abs=1e-12)
         assert found.sigma == pytest.approx(sigma, rel=1e-12)
+
+
+@pytest.mark.parametrize("shape, bound_um", [
+    # a triangle at 5 mm/s whose corners the actuator rounds over 6 ms: a sharp kink put the
+    # apex where the legs meet, +3.3 um beyond the turn
+    ("triangle", 1.2),
+    # a 10 Hz sine at 500 Hz seen over the fit's window of +-1 rad: +3.1 um
+    ("sine", 0.8)])
+def test_rounded_and_fast_turns_are_not_placed_beyond_the_apex(shape, bound_um):
+    """benchmarks/turning_points.py's cases at 500 Hz with the withheld-effect benchmark's
+    sensor noise (0.73 um, 1 um encoder), against the extremum of the simulator's fine
+    path: the turn model's kink is rounded (a + b u + c u^2 + d sqrt(u^2 + r^2))."""
+    from fitstiff._testing import rig_sim as rs
+    from fitstiff.signal.noise import estimate_noise
+
+    if shape == "triangle":
+        program = rs.Program(tuple(s for _ in range(12) for s in (rs.leg(1.0, 5.0),
+                                                                  rs.leg(-1.0, 5.0))))
+    else:
+        program = rs.Program((rs.sweep(0.3, 10.0, 10.0, 6.0),))
+    sub = 20
+    _, fine = rs.render(program, 500.0, sub)
+    step = np.sign(np.diff(fine))
+    moving = np.flatnonzero(step)
+    turns = moving[1:][np.diff(step[moving]) != 0]
+    errors = []
+    for seed in range(3):
+        apex, sign, reversals = [], [], []
+        for c in turns:
+            lo, hi = max(c - sub, 0), min(c + sub, fine.size - 1)
+            up = step[moving[moving < c][-1]] > 0
+            k = lo + int(np.argmax(fine[lo:hi + 1]) if up else np.argmin(fine[lo:hi + 1]))
+            apex.append(fine[k])
+            sign.append(1.0 if up else -1.0)
+            reversals.append(round(k / sub))
+        apex, sign, reversals = map(np.asarray, (apex, sign, reversals))
+        sampled = fine[::sub]
+        keep = (reversals > 40) & (reversals < sampled.size - 40)
+        rng = np.random.default_rng(seed)
+        x = np.round((sampled + 0.73e-6 * rng.standard_normal(sampled.size)) / 1e-6) * 1e-6
+        _, value, _ = turning_points(x, reversals[keep], noise=estimate_noise(x))
+        errors.extend((value - apex[keep]) * sign[keep])
+    assert len(errors) > 60
+    assert abs(np.mean(errors)) < bound_um * 1e-6
