@@ -92,14 +92,21 @@ def main(argv=None) -> None:
             print(f"{rate:6.0f} Hz  {name:28s} turns {row['turns']:3d}   fitted "
                   f"{row['fitted_mean_um']:+6.2f} +- {row['fitted_sd_um']:4.2f} um   raw "
                   f"{row['raw_mean_um']:+6.2f} +- {row['raw_sd_um']:4.2f} um", flush=True)
-    rms = lambda key: float(np.sqrt(np.mean([r[f"{key}_mean_um"] ** 2 + r[f"{key}_sd_um"] ** 2  # noqa: E731
-                                             for r in rows])))
-    largest = max(rows, key=lambda r: abs(r["fitted_mean_um"]))
+    def rms(key: str) -> float:
+        return float(np.sqrt(np.mean([r[f"{key}_mean_um"] ** 2 + r[f"{key}_sd_um"] ** 2
+                                      for r in rows])))
+
+    bias = np.abs([r["fitted_mean_um"] for r in rows])
+    largest = rows[int(np.argmax(bias))]
     summary = {"fitted_rms_error_um": rms("fitted"), "raw_rms_error_um": rms("raw"),
+               "fitted_median_abs_bias_um": float(np.median(bias)),
+               "fitted_cases_above_1um": int(np.sum(bias > 1.0)), "cases": len(rows),
                "largest_fitted_bias_um": largest["fitted_mean_um"],
                "largest_fitted_bias_case": f"{largest['program']} at {largest['rate_hz']:.0f} Hz"}
     print(f"RMS error over the cases: fitted {summary['fitted_rms_error_um']:.2f} um, raw "
-          f"{summary['raw_rms_error_um']:.2f} um; largest fitted bias "
+          f"{summary['raw_rms_error_um']:.2f} um; fitted median abs bias "
+          f"{summary['fitted_median_abs_bias_um']:.2f} um, above 1 um in "
+          f"{summary['fitted_cases_above_1um']} of {len(rows)} cases; largest "
           f"{summary['largest_fitted_bias_um']:+.2f} um ({summary['largest_fitted_bias_case']})")
     if args.json:
         args.json.write_text(json.dumps({"noise_um": NOISE_M * 1e6, "quantum_um": QUANTUM_M * 1e6,

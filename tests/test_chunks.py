@@ -66,6 +66,30 @@ def test_windows_predict_what_the_whole_log_does(logs, small_windows, spec):
                 np.abs(a[key])), err_msg=f"{spec}: {key}")
 
 
+@pytest.mark.parametrize("delay_s", [
+    3.3e-3,
+    # found in session 24: the windows (even one window over the whole log) differ from the
+    # whole-log run by up to 0.094 N (0.4 % of the force) at a reversal near sample 288; with
+    # the shift reading ahead of each sample something in the whole-log path is not the
+    # stepped law. Not yet found.
+    pytest.param(-3.3e-3, marks=pytest.mark.xfail(strict=True, reason="a negative time delay: "
+                                                  "windows and whole log differ (open)"))])
+def test_windows_predict_what_the_whole_log_does_with_a_time_delay(logs, small_windows, delay_s):
+    """The test above runs the time delay at its start value, 0; here it shifts the drive
+    by 1.65 samples either way."""
+    from fitstiff.physics.params import Parameterization
+
+    spec = "chamber+maxwell_slip:3+time_delay"
+    whole = Problem(logs, spec, chunked=False, denoise=False)
+    chunked = Problem(logs, spec, chunked=True, denoise=False)
+    model, nuisances = initial_guess(whole)
+    model = Parameterization(model).with_values(model, {"delay": delay_s})
+    theta = whole.pack(model, nuisances)
+    for a, b in zip(whole.per_log(theta), chunked.per_log(theta)):
+        np.testing.assert_allclose(b["force"], a["force"], rtol=1e-10,
+                                   atol=1e-9 * np.max(np.abs(a["force"])))
+
+
 def test_windows_keep_a_measured_compliances_runs(logs, small_windows):
     """rig_compliance:measured keeps its piston to the monotone runs of the displacement it is
     given, found in the samples it is given: the windows predict what the whole log does up
