@@ -202,8 +202,9 @@ class Windows:
         if "friction_state0" in nuisances:
             nuisances = {**nuisances, "friction_state0": nuisances["friction_state0"] + dz}
         drive = with_nuisances(win.drive, nuisances, log)
+        tie = (win.tie_i, win.tie_j, win.tie_a, win.tie_b)
         return model.run_window(drive, None if first else carry, start=self.margin,
-                                length=self.window)
+                                length=self.window, tie=tie)
 
     def _residuals(self, theta, dz, carry, win: _Window, log, first: bool):
         """The window's whitened residuals, its predicted force and the state after it."""
