@@ -55,18 +55,7 @@ def outward_errors(program, rate_hz: float, seed: int) -> tuple[np.ndarray, np.n
 
     _, fine = rs.render(program, rate_hz, SUBSTEPS)
     sampled = fine[::SUBSTEPS]
-    step = np.sign(np.diff(fine))
-    moving = np.flatnonzero(step != 0)
-    turns = moving[1:][np.diff(step[moving]) != 0]
-    apex, sign, reversals = [], [], []
-    for c in turns:
-        lo, hi = max(c - SUBSTEPS, 0), min(c + SUBSTEPS, fine.size - 1)
-        up = step[moving[moving < c][-1]] > 0
-        k = lo + int(np.argmax(fine[lo:hi + 1]) if up else np.argmin(fine[lo:hi + 1]))
-        apex.append(fine[k])
-        sign.append(1.0 if up else -1.0)
-        reversals.append(int(round(k / SUBSTEPS)))
-    apex, sign, reversals = map(np.asarray, (apex, sign, reversals))
+    apex, sign, reversals = rs.fine_turns(fine, SUBSTEPS)
     keep = (reversals > 40) & (reversals < sampled.size - 40)
     rng = np.random.default_rng(seed)
     x = np.round((sampled + NOISE_M * rng.standard_normal(sampled.size)) / QUANTUM_M) * QUANTUM_M

@@ -274,22 +274,11 @@ def test_rounded_and_fast_turns_are_not_placed_beyond_the_apex(shape, bound_um):
         program = rs.Program((rs.sweep(0.3, 10.0, 10.0, 6.0),))
     sub = 20
     _, fine = rs.render(program, 500.0, sub)
-    step = np.sign(np.diff(fine))
-    moving = np.flatnonzero(step)
-    turns = moving[1:][np.diff(step[moving]) != 0]
+    apex, sign, reversals = rs.fine_turns(fine, sub)
+    sampled = fine[::sub]
+    keep = (reversals > 40) & (reversals < sampled.size - 40)
     errors = []
     for seed in range(3):
-        apex, sign, reversals = [], [], []
-        for c in turns:
-            lo, hi = max(c - sub, 0), min(c + sub, fine.size - 1)
-            up = step[moving[moving < c][-1]] > 0
-            k = lo + int(np.argmax(fine[lo:hi + 1]) if up else np.argmin(fine[lo:hi + 1]))
-            apex.append(fine[k])
-            sign.append(1.0 if up else -1.0)
-            reversals.append(round(k / sub))
-        apex, sign, reversals = map(np.asarray, (apex, sign, reversals))
-        sampled = fine[::sub]
-        keep = (reversals > 40) & (reversals < sampled.size - 40)
         rng = np.random.default_rng(seed)
         x = np.round((sampled + 0.73e-6 * rng.standard_normal(sampled.size)) / 1e-6) * 1e-6
         _, value, _ = turning_points(x, reversals[keep], noise=estimate_noise(x))

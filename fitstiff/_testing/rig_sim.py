@@ -169,6 +169,23 @@ def render(program: Program, rate_hz: float, substeps: int, *,
     return rounded(np.arange(xf.size) * dt, xf, smooth_s=smooth_s)
 
 
+def fine_turns(fine: np.ndarray, substeps: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The turns of a fine path (:func:`render`'s): per turn its extreme displacement (m),
+    its sign (+1 a peak, -1 a trough) and the logged sample nearest to it (every
+    ``substeps``-th fine point is logged). What a turning-point estimate is checked against."""
+    step = np.sign(np.diff(fine))
+    moving = np.flatnonzero(step)
+    apex, sign, sample = [], [], []
+    for c in moving[1:][np.diff(step[moving]) != 0]:
+        lo, hi = max(c - substeps, 0), min(c + substeps, fine.size - 1)
+        up = step[moving[moving < c][-1]] > 0
+        k = lo + int(np.argmax(fine[lo:hi + 1]) if up else np.argmin(fine[lo:hi + 1]))
+        apex.append(fine[k])
+        sign.append(1.0 if up else -1.0)
+        sample.append(round(k / substeps))
+    return np.asarray(apex), np.asarray(sign), np.asarray(sample, dtype=int)
+
+
 def rounded(t: np.ndarray, xf: np.ndarray, *, smooth_s: float = 0.006
             ) -> tuple[np.ndarray, np.ndarray]:
     """A fine motion with its corners rounded by a Hann window of ``smooth_s`` (what the
