@@ -46,6 +46,16 @@ def programs() -> dict[str, object]:
     return out
 
 
+def benchmark_logs() -> list[tuple[float, str, object]]:
+    """The withheld-effect benchmark's three log programs at their own speeds and rates
+    (triangles, a nested loop, pauses at turns, a fast stroke into a hold, a sine sweep):
+    turns of several kinds in one log, as a diagnosis meets them."""
+    from fitstiff._testing.withheld import LOGS, log_program
+
+    return [(rate, f"withheld log {i} ({speed:g} mm/s)", log_program(i, speed))
+            for i, (speed, rate) in enumerate(LOGS)]
+
+
 def outward_errors(program, rate_hz: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
     """Outward errors (m) of the fitted and of the raw turning points against the fine
     path's extrema."""
@@ -71,8 +81,10 @@ def main(argv=None) -> None:
     args = parser.parse_args(argv)
     start = time.perf_counter()
     rows = []
-    for rate in RATES_HZ:
-        for name, program in programs().items():
+    cases = [(rate, name, program) for rate in RATES_HZ for name, program in programs().items()]
+    cases += benchmark_logs()
+    for rate, name, program in cases:
+        if True:
             fitted, raw = (e * 1e6 for e in outward_errors(program, rate, args.seed))
             row = {"rate_hz": rate, "program": name, "turns": int(fitted.size),
                    "fitted_mean_um": float(fitted.mean()), "fitted_sd_um": float(fitted.std()),

@@ -120,7 +120,8 @@ class Problem:
                                    needs_supply="closing_pressure" not in free, host=host)
             array = np.asarray if host else jnp.asarray
             if den:
-                x = denoise_displacement(log.displacement, seg.reversals, noise=seg.noise)
+                x = denoise_displacement(log.displacement, seg.reversals, noise=seg.noise,
+                                         still=seg.still)
                 drive = (dataclasses.replace(drive, displacement=x) if host
                          else drive.with_displacement(x))
                 if log.time is not None:

@@ -25,6 +25,9 @@ not turn anywhere else.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from typing import NamedTuple
+
 import numpy as np
 
 from fitstiff.signal.noise import marginal_scale
@@ -76,7 +79,8 @@ def _extrema(x: np.ndarray, reversals: np.ndarray) -> np.ndarray:
 
 
 def denoise_displacement(displacement: np.ndarray, reversals: np.ndarray, *,
-                         noise: float | None = None) -> np.ndarray:
+                         noise: float | None = None, still: np.ndarray | None = None
+                         ) -> np.ndarray:
     """Monotone least-squares fit of ``displacement`` between the ``reversals`` (indices),
     with each turning point at its local-fit estimate (:func:`turning_points`).
 
@@ -86,20 +90,39 @@ def denoise_displacement(displacement: np.ndarray, reversals: np.ndarray, *,
     turning sample takes the fitted extremum, and no sample of the two segments beside it goes
     past that (isotonic regression with a bound is the clipped unbounded one). ``noise``
     (displacement noise, m) sizes the local fits; ``None`` estimates it from the data.
+
+    ``still`` (per sample, non-zero inside a pause: the segmentation's
+    :attr:`~fitstiff.segments.segmentation.Segmentation.still`) holds each pause at one level:
+    a pause is one block of the monotone fit, and a pause that holds a turning point stands at
+    the turn's level, its samples' mean. Left to the monotone fit alone, a pause's noise
+    became a staircase in the direction of the segment it lies in: after a reversal each of
+    its sub-um steps moved a Dahl force at twice the pre-sliding stiffness (0.15 N over a
+    0.4 s hold on the withheld benchmark's ``null/12``), which a friction level rising at low
+    speed (Stribeck) then explained.
     """
     from scipy.optimize import isotonic_regression  # slow to import; only fits need it
 
     x = np.asarray(displacement, dtype=float)
     n = x.shape[0]
     index, value, _ = turning_points(x, np.asarray(reversals, dtype=int), noise=noise)
+    spans = _still_spans(still, n)
+    for k, r in enumerate(index):
+        inside = (spans[:, 0] <= r) & (r < spans[:, 1]) if spans.size else np.zeros(0, bool)
+        if inside.any():
+            start, stop = spans[np.argmax(inside)]
+            value[k] = float(np.mean(x[start:stop]))
     cuts = np.concatenate([[0], index, [n - 1]])
     out = x.copy()
     for start, stop in zip(cuts[:-1], cuts[1:]):
         if stop <= start:
             continue
         segment = x[start:stop + 1]
-        increasing = segment[-1] >= segment[0]
-        out[start:stop + 1] = isotonic_regression(segment, increasing=bool(increasing)).x
+        increasing = bool(segment[-1] >= segment[0])
+        block = _blocks(spans, start, stop + 1)
+        weights = np.bincount(block).astype(float)
+        means = np.bincount(block, weights=segment) / weights
+        out[start:stop + 1] = isotonic_regression(means, weights=weights,
+                                                  increasing=increasing).x[block]
     for k, (r, v) in enumerate(zip(index, value)):
         lo = cuts[k]
         hi = cuts[k + 2]
@@ -109,7 +132,34 @@ def denoise_displacement(displacement: np.ndarray, reversals: np.ndarray, *,
         out[lo:hi + 1] = np.minimum(out[lo:hi + 1], v) if is_max else np.maximum(
             out[lo:hi + 1], v)
         out[r] = v
+    for start, stop in spans:               # a pause at a turn stands at the turn's level
+        turns = index[(index >= start) & (index < stop)]
+        if turns.size:
+            out[start:stop] = out[turns[0]]
     return out
+
+
+def _still_spans(still: np.ndarray | None, n: int) -> np.ndarray:
+    """Half-open ``[start, stop)`` spans of the non-zero entries of ``still`` (none if
+    ``None``)."""
+    if still is None:
+        return np.empty((0, 2), dtype=int)
+    flag = np.asarray(still) > 0
+    if flag.shape != (n,):
+        raise ValueError(f"still has {flag.size} entries for a displacement of {n} samples")
+    edges = np.diff(flag.astype(np.int8), prepend=0, append=0)
+    return np.column_stack([np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)])
+
+
+def _blocks(spans: np.ndarray, start: int, stop: int) -> np.ndarray:
+    """Block number of each sample of ``[start, stop)`` for the monotone fit: a pause's
+    samples share one block, every other sample has its own; numbered in order."""
+    new = np.ones(stop - start, dtype=bool)        # the sample starts a new block
+    for a, b in spans:
+        a, b = max(a, start), min(b, stop)
+        if b - a > 1:
+            new[a + 1 - start:b - start] = False
+    return np.cumsum(new) - 1
 
 
 _TP_SPAN = 15.0     # a turning-point window reaches this many noise levels from the apex
@@ -136,12 +186,13 @@ def turning_points(x: np.ndarray, reversals: np.ndarray, *, noise: float | None 
     the apex (by the mean speed of the two legs) are fitted by
     ``a + b u + c u^2 + d sqrt(u^2 + r^2)``, ``u = i - i0``, a kink ``d`` rounded over ``r``
     samples (a triangle's turn, sharp or as the actuator rounds it) on a smooth curve (a
-    sine's round turn), with ``i0`` on a quarter-sample grid (:func:`_turn_fit`); the estimate is
-    the fitted curve's extremum and the sample nearest to it. A window the curve does not
-    describe (residual RMS above ``_TP_FIT`` marginal noise levels: flat, ramp and flat
-    around a turn placed in a hold after a stroke) is halved until it does. Reversals too
-    close to each other or to the ends for a window keep the raw extreme sample and the
-    noise as error.
+    sine's round turn), with ``i0`` on a quarter-sample grid (:func:`_turn_profile`); the
+    estimate is the fitted curve's extremum and the sample nearest to it. The rounding ``r``
+    is one per log (:func:`_shared_rounding`): the actuator rounds its corners over a time of
+    its own, the same at every turn. A window the curve does not describe (residual RMS
+    above ``_TP_FIT`` marginal noise levels: flat, ramp and flat around a turn placed in a
+    hold after a stroke) is halved until it does. Reversals too close to each other or to
+    the ends for a window keep the raw extreme sample and the noise as error.
 
     ``noise`` is the white-equivalent level (:func:`~fitstiff.signal.noise.estimate_noise`)
     and ``rho`` the lag-1 correlation of the noise: the errors are the fit's under AR(1)
@@ -159,50 +210,71 @@ def turning_points(x: np.ndarray, reversals: np.ndarray, *, noise: float | None 
         noise = estimate_noise(x)
     index, value = raw.copy(), x[raw].copy()
     error = np.full(raw.shape, float(noise) * marginal_scale(rho))
+    if noise <= 0:
+        return index, value, error
+    level = float(noise) * marginal_scale(rho)
     bounds = np.concatenate([[0], raw, [n - 1]])
+    windows: list[tuple[int, int, dict]] = []        # (turn k, window start, profile)
     for k, r in enumerate(raw):
         prev, nxt = bounds[k], bounds[k + 2]
         steps = [abs(x[r] - x[prev]) / max(r - prev, 1), abs(x[nxt] - x[r]) / max(nxt - r, 1)]
         step = max(min(steps), 1e-300)
         w = int(np.clip(np.ceil(_TP_SPAN * noise / step), _TP_MIN, _TP_MAX))
         w = min(w, (r - prev) // 2, (nxt - r) // 2)
-        if noise <= 0:
-            continue
         # a window the turn model does not describe is halved until it does (a fast stroke
         # into a hold, seen from a reversal placed in the hold: flat, ramp, flat; its fitted
         # "extremum" lay 11 um beyond every sample of a 1 um-noise log, and a Dahl force
         # jumped 1.2 N at the turn)
-        fitted = None
         while w >= _TP_MIN:
-            fitted = _turn_fit(x[r - w:r + w + 1], noise, rho)
-            if fitted is not None:
+            profile = _turn_profile(x[r - w:r + w + 1])
+            if profile and min(p.sse for p in profile.values()) <= (
+                    _TP_FIT**2 * (2 * w + 1) * level**2):
+                windows.append((k, r - w, profile))
                 break
             w //= 2
+    rounding = _shared_rounding([p for _, _, p in windows], level)
+    for k, start, profile in windows:
+        usable = [r for r in profile if r <= rounding]
+        fitted = _turn_estimate(x[start:start + 2 * next(iter(profile.values())).m + 1],
+                                profile[max(usable)], rho, level)
         if fitted is None:
             continue
         offset, value[k], error[k] = fitted
-        index[k] = r - w + int(round(offset))
+        index[k] = start + int(round(offset))
     return index, value, error
 
 
-def _turn_fit(y: np.ndarray, noise: float, rho: float = 0.0):
-    """``(position, extremum, standard error)`` of the turn model fitted to ``y`` (one window
-    around a turn, the apex near its middle); ``None`` if ill-posed or if the curve does not
-    describe the window (residual RMS above ``_TP_FIT`` times the marginal noise).
+class _TurnFit(NamedTuple):
+    """The turn model fitted to one window for one rounding ``r``: the best kink position
+    ``kink`` (samples from the window's start), the coefficients, the Gram matrix and design
+    at that kink, the residual sum of squares, and ``m``: the window's half-width."""
 
-    The model is ``a + b u + c u^2 + d sqrt(u^2 + r^2)``, ``u = i - i0``: a kink at ``i0``
-    rounded over ``r`` samples on a smooth curve, linear in ``a, b, c, d`` for each ``(i0,
-    r)`` on a grid (``i0`` every quarter sample, ``r`` in :data:`_TP_ROUNDING`); the best
-    ``(i0, r)`` by the residual. ``r = 0`` is the sharp kink of a triangle's turn; an actuator
-    rounds that kink over a few milliseconds, and a sharp kink fitted to a rounded turn puts
-    the apex where the legs meet, beyond the turn (measured with
-    ``benchmarks/turning_points.py``: +3.3 um at 5 mm/s and 500 Hz, corners rounded over
-    6 ms, 0.73 um of noise); a sine's round turn seen over a window of +-1 rad is neither a
-    parabola nor a kink (+3.1 um at 10 Hz and 500 Hz). The rounded kink takes them to +0.8
-    and +0.3 um. A rounding is kept only where it lowers the residual sum of squares by
-    :data:`_TP_ROUNDING_PENALTY` noise variances: chosen freely, noise rounds a sharp kink and
-    pulls its apex inward (-0.28 um on 1 mm/s triangles at 1 kHz, 1 um of noise).
-    """
+    r: float
+    kink: float
+    coef: np.ndarray
+    gram: np.ndarray
+    design: np.ndarray
+    sse: float
+    m: int
+
+
+def _basis(u: np.ndarray, r: float, scale: float) -> np.ndarray:
+    return np.stack([np.ones_like(u), u / scale, (u / scale) ** 2,
+                     np.sqrt(u**2 + r**2) / scale], -1)
+
+
+def _turn_profile(y: np.ndarray) -> dict[float, _TurnFit]:
+    """The turn model ``a + b u + c u^2 + d sqrt(u^2 + r^2)``, ``u = i - i0`` (a kink at
+    ``i0`` rounded over ``r`` samples on a smooth curve) fitted to ``y`` (one window around a
+    turn, the apex near its middle) for each rounding ``r`` of :data:`_TP_ROUNDING` the
+    window can hold: linear in ``a, b, c, d`` for each ``(i0, r)``, ``i0`` every quarter
+    sample, the best ``i0`` kept per ``r``. Empty if the sharp kink is ill-posed.
+
+    ``r = 0`` is the sharp kink of a triangle's turn; an actuator rounds that kink over a few
+    milliseconds, and a sharp kink fitted to a rounded turn puts the apex where the legs
+    meet, beyond the turn (measured with ``benchmarks/turning_points.py``: +3.3 um at 5 mm/s
+    and 500 Hz, corners rounded over 6 ms, 0.73 um of noise); a sine's round turn seen over a
+    window of +-1 rad is neither a parabola nor a kink (+3.1 um at 10 Hz and 500 Hz)."""
     m = y.shape[0]
     i = np.arange(m, dtype=float)
     centre = (m - 1) / 2
@@ -210,51 +282,76 @@ def _turn_fit(y: np.ndarray, noise: float, rho: float = 0.0):
     kinks = centre + np.arange(-_TP_GRID * (m // 4), _TP_GRID * (m // 4) + 1) / _TP_GRID
     u = i[None, :] - kinks[:, None]                          # (K, m)
     scale = max(centre, 1.0)
-
-    def basis(u, r):
-        return np.stack([np.ones_like(u), u / scale, (u / scale) ** 2,
-                         np.sqrt(u**2 + r**2) / scale], -1)
-
-    best = None             # (penalised sse, r, kink, coef, gram, design, sse) of the best
+    out: dict[float, _TurnFit] = {}
     for r in (r for r in _TP_ROUNDING if r <= centre):
         if r > 0:
             # a rounded kink sits near the sharp one: searched within two samples of it
             # (the whole grid for every rounding made a 10 kHz log's turns 5x slower)
-            near = np.abs(kinks - best[2]) <= 2.0
+            near = np.abs(kinks - out[0.0].kink) <= 2.0
             kinks, u = kinks[near], u[near]
-        design = basis(u, r)
+        design = _basis(u, r, scale)
         gram = np.einsum("kmi,kmj->kij", design, design)
         rhs = np.einsum("kmi,m->ki", design, y0)
         try:
             coef = np.linalg.solve(gram, rhs[..., None])[..., 0]
         except np.linalg.LinAlgError:
             if r == 0:
-                return None
+                return {}
             continue                    # a wide rounding on a short window: the parabola
         sse = np.sum((np.einsum("kmi,ki->km", design, coef) - y0) ** 2, axis=1)
         k = int(np.argmin(sse))
-        # a rounding must earn its place: chosen freely, noise alone rounds a sharp kink
-        # and pulls its apex inward
-        penalty = 0.0 if r == 0 else _TP_ROUNDING_PENALTY * (noise * marginal_scale(rho)) ** 2
-        if best is None or sse[k] + penalty < best[0]:
-            best = (sse[k] + penalty, r, kinks[k], coef[k], gram[k], design[k], sse[k])
-    _, r, kink, coef, gram, design, sse = best
-    if sse > _TP_FIT**2 * m * (noise * marginal_scale(rho)) ** 2:
-        return None                     # the window is not a turn (plus noise)
-    # the fitted curve on a fine grid; its extremum in the direction of the turn
+        out[r] = _TurnFit(r, float(kinks[k]), coef[k], gram[k], design[k], float(sse[k]),
+                          (m - 1) // 2)
+    return out
+
+
+def _shared_rounding(profiles: Sequence[dict[float, _TurnFit]], level: float) -> float:
+    """The kink rounding (samples) of a log's turns: the ``r`` of :data:`_TP_ROUNDING` that
+    minimises the residual sum of squares summed over the turns (a window too short for
+    ``r`` counts with the widest rounding it holds), kept only where it saves
+    :data:`_TP_ROUNDING_PENALTY` noise variances over the sharp kink.
+
+    The actuator rounds its corners over a time of its own, so one rounding serves every
+    turn of the log. Chosen turn by turn, noise decided it: a rounded turn read as sharp
+    puts its apex several um beyond the true one (+4.4 to +5.6 um on four of the 5.4 mm/s
+    turns of the withheld benchmark's null/12, a 500 Hz log with corners rounded over
+    6 ms), and a sharp turn read as rounded pulls its apex inward."""
+    if not profiles:
+        return 0.0
+    total = {r: 0.0 for r in _TP_ROUNDING}
+    for profile in profiles:
+        for r in total:
+            usable = [q for q in profile if q <= r]
+            total[r] += profile[max(usable)].sse
+    sharp = total[0.0]
+    best = min(total, key=lambda r: total[r] + (0.0 if r == 0 else
+                                                 _TP_ROUNDING_PENALTY * level**2))
+    return best if total[best] + _TP_ROUNDING_PENALTY * level**2 < sharp else 0.0
+
+
+def _turn_estimate(y: np.ndarray, fit: _TurnFit, rho: float, level: float):
+    """``(position, extremum, standard error)`` of a fitted turn model (:func:`_turn_profile`)
+    on its window ``y``: the fitted curve's extremum in the direction of the turn, and its
+    error under AR(1) noise of lag-1 correlation ``rho`` and marginal ``level``; ``None`` if
+    ill-posed."""
+    m = y.shape[0]
+    i = np.arange(m, dtype=float)
+    centre = (m - 1) / 2
+    y0 = y - y[int(centre)]
+    scale = max(centre, 1.0)
     grid = np.linspace(0.0, m - 1.0, _TP_GRID * (m - 1) + 1)
-    curve = basis(grid - kink, r) @ coef
+    curve = _basis(grid - fit.kink, fit.r, scale) @ fit.coef
     is_max = y0[0] + y0[-1] < 2 * np.mean(y0)                # ends below the middle: a peak
     j = int(np.argmax(curve) if is_max else np.argmin(curve))
-    row = basis(np.asarray(grid[j] - kink), r)
+    row = _basis(np.asarray(grid[j] - fit.kink), fit.r, scale)
     try:
-        h = np.linalg.solve(gram, row)                    # (X^T X)^-1 row
+        h = np.linalg.solve(fit.gram, row)                # (X^T X)^-1 row
     except np.linalg.LinAlgError:
         return None
     # with AR(1) noise the sandwich row (X^T X)^-1 X^T R X (X^T X)^-1 row, R_ij = rho^|i-j|
-    xh = design @ h
+    xh = fit.design @ h
     lags = np.abs(i[:, None] - i[None, :])
-    var = float(xh @ (rho ** lags) @ xh) * (noise * marginal_scale(rho)) ** 2
+    var = float(xh @ (rho ** lags) @ xh) * level**2
     return grid[j], float(curve[j] + y[int(centre)]), float(np.sqrt(max(var, 0.0)))
 
 
