@@ -167,7 +167,7 @@ _TP_MIN = 10        # samples either side, at least
 _TP_MAX = 400       # and at most
 _TP_GRID = 4        # kink positions per sample
 _TP_FIT = 3.0       # a turn model whose residual RMS exceeds this many noise levels misfits
-#: roundings (samples) of the turn model's kink (:func:`_turn_fit`)
+#: roundings (samples) of the turn model's kink (:func:`_turn_profile`)
 _TP_ROUNDING = (0.0, 0.25, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0, 64.0)
 #: residual sum of squares (in noise variances) a rounding must save over the sharp kink
 _TP_ROUNDING_PENALTY = 4.0
