@@ -214,7 +214,7 @@ def turning_points(x: np.ndarray, reversals: np.ndarray, *, noise: float | None 
         return index, value, error
     level = float(noise) * marginal_scale(rho)
     bounds = np.concatenate([[0], raw, [n - 1]])
-    windows: list[tuple[int, int, dict]] = []        # (turn k, window start, profile)
+    windows: list[tuple[int, slice, dict]] = []      # (turn k, its window, its profile)
     for k, r in enumerate(raw):
         prev, nxt = bounds[k], bounds[k + 2]
         steps = [abs(x[r] - x[prev]) / max(r - prev, 1), abs(x[nxt] - x[r]) / max(nxt - r, 1)]
@@ -229,25 +229,24 @@ def turning_points(x: np.ndarray, reversals: np.ndarray, *, noise: float | None 
             profile = _turn_profile(x[r - w:r + w + 1])
             if profile and min(p.sse for p in profile.values()) <= (
                     _TP_FIT**2 * (2 * w + 1) * level**2):
-                windows.append((k, r - w, profile))
+                windows.append((k, slice(r - w, r + w + 1), profile))
                 break
             w //= 2
     rounding = _shared_rounding([p for _, _, p in windows], level)
-    for k, start, profile in windows:
-        usable = [r for r in profile if r <= rounding]
-        fitted = _turn_estimate(x[start:start + 2 * next(iter(profile.values())).m + 1],
-                                profile[max(usable)], rho, level)
+    for k, window, profile in windows:
+        fitted = _turn_estimate(x[window], profile[max(r for r in profile if r <= rounding)],
+                                rho, level)
         if fitted is None:
             continue
         offset, value[k], error[k] = fitted
-        index[k] = start + int(round(offset))
+        index[k] = window.start + int(round(offset))
     return index, value, error
 
 
 class _TurnFit(NamedTuple):
     """The turn model fitted to one window for one rounding ``r``: the best kink position
     ``kink`` (samples from the window's start), the coefficients, the Gram matrix and design
-    at that kink, the residual sum of squares, and ``m``: the window's half-width."""
+    at that kink, and the residual sum of squares."""
 
     r: float
     kink: float
@@ -255,7 +254,6 @@ class _TurnFit(NamedTuple):
     gram: np.ndarray
     design: np.ndarray
     sse: float
-    m: int
 
 
 def _basis(u: np.ndarray, r: float, scale: float) -> np.ndarray:
@@ -300,8 +298,7 @@ def _turn_profile(y: np.ndarray) -> dict[float, _TurnFit]:
             continue                    # a wide rounding on a short window: the parabola
         sse = np.sum((np.einsum("kmi,ki->km", design, coef) - y0) ** 2, axis=1)
         k = int(np.argmin(sse))
-        out[r] = _TurnFit(r, float(kinks[k]), coef[k], gram[k], design[k], float(sse[k]),
-                          (m - 1) // 2)
+        out[r] = _TurnFit(r, float(kinks[k]), coef[k], gram[k], design[k], float(sse[k]))
     return out
 
 
@@ -323,10 +320,7 @@ def _shared_rounding(profiles: Sequence[dict[float, _TurnFit]], level: float) ->
         for r in total:
             usable = [q for q in profile if q <= r]
             total[r] += profile[max(usable)].sse
-    sharp = total[0.0]
-    best = min(total, key=lambda r: total[r] + (0.0 if r == 0 else
-                                                 _TP_ROUNDING_PENALTY * level**2))
-    return best if total[best] + _TP_ROUNDING_PENALTY * level**2 < sharp else 0.0
+    return min(total, key=lambda r: total[r] + (r > 0) * _TP_ROUNDING_PENALTY * level**2)
 
 
 def _turn_estimate(y: np.ndarray, fit: _TurnFit, rho: float, level: float):
