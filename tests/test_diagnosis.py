@@ -16,7 +16,7 @@ import pytest
 from conftest import (CHROMIUM, check_renders_in_chromium, page_width_in_chromium,
                       run_benchmark)
 
-from fitstiff.errors import InputError
+from fitstiff.errors import FitstiffError, InputError
 from fitstiff.io.log import Rig
 from fitstiff.physics.model import build_model
 from fitstiff.physics.params import Parameterization
@@ -665,3 +665,71 @@ def test_an_accepted_maxwell_slip_keeps_its_slip_displacements():
     moved[shape] *= 3.0
     kept = maxwell_shape(sp, theta, moved, ["chamber", "dahl", "maxwell_slip"])
     np.testing.assert_array_equal(kept, moved)
+
+
+def test_a_friction_base_a_law_has_taken_over_keeps_every_derivative_finite():
+    """``law/maxwell_slip/3``: once Maxwell-slip elements carried the friction, Dahl's Fc was
+    fitted to 7e-215 N and sigma0 to 0; the series compliance's Newton step (in the super
+    model at its null) carries a zero tangent into ``|dx| / Fc``, whose forward derivative
+    ``a dFc / Fc**2`` was NaN (``Fc**2`` underflows): viscous's column was NaN on every force
+    row and the screen's SVD failed. The rate is now taken at a piconewton level at least."""
+    from fitstiff.diagnosis.supermodel import SuperProblem
+
+    logs = _logs("chamber+dahl", {}, rates=(2.0, 6.0))
+    sp = SuperProblem(logs, "chamber+dahl", ["viscous", "stribeck", "rig_compliance",
+                                             "maxwell_slip"])
+    theta, hold = sp.start()
+    names = sp.problem.par.names
+    active = ["chamber", "dahl", "stribeck", "maxwell_slip"]
+    x = np.array(sp.physical(theta, hold, sp.model_mask(active)))
+    for name, value in (("Fc", 7.4e-215), ("sigma0", 0.0), ("stribeck_ratio", 1.02)):
+        x[names.index(name)] = value
+    r, jac = sp.jacobian(x, theta)
+    assert np.isfinite(r).all()
+    assert np.isfinite(jac).all(), [names[k] if k < len(names) else k
+                                    for k in np.flatnonzero(~np.isfinite(jac).all(axis=0))]
+    # above the floor the model is the same: Dahl's force alone at an ordinary level
+    x[names.index("Fc")], x[names.index("sigma0")] = 18.0, 40e3
+    tangent = np.zeros(sp.n_model)
+    tangent[names.index("c")] = 1.0
+    _, col = sp.column(x, theta, tangent)
+    assert np.isfinite(col).all() and np.abs(col).max() > 0
+
+
+def test_a_candidate_whose_column_is_not_finite_is_not_testable_and_the_screen_goes_on(
+        monkeypatch):
+    from fitstiff.diagnosis.screen import screen
+    from fitstiff.diagnosis.supermodel import SuperProblem
+
+    logs = _logs("chamber+dahl+viscous", {"n": 1.4, "sigma0": 40, "Fc": 18, "c": 100})
+    sp = SuperProblem(logs, "chamber+dahl", ["viscous", "inertia"])
+    theta, hold = sp.start()
+    real = sp.jacobian
+    k = sp.elements("inertia", tested=True)[0]
+
+    def broken(x, th):
+        r, jac = real(x, th)
+        jac = jac.copy()
+        jac[5:40, k] = np.nan
+        return r, jac
+
+    monkeypatch.setattr(sp, "jacobian", broken)
+    noise = [noise_floor(log.force) for log in logs]
+    scores, _ = screen(sp, theta, hold, active=["chamber", "dahl"],
+                       candidates=["viscous", "inertia"], noise=noise,
+                       weights=sp.entry_weights(), alpha=0.05, min_gain=0.05)
+    by = {s.effect: s for s in scores}
+    assert by["viscous"].testable and by["viscous"].log_p < -20
+    assert not by["inertia"].testable and "not finite" in by["inertia"].reason
+    assert "35 of" in by["inertia"].reason
+
+    def base_broken(x, th):
+        r, jac = real(x, th)
+        jac = jac.copy()
+        jac[:, sp.problem.par.names.index("Fc")] = np.nan
+        return r, jac
+
+    monkeypatch.setattr(sp, "jacobian", base_broken)
+    with pytest.raises(FitstiffError, match=r"not finite \(Fc\)"):
+        screen(sp, theta, hold, active=["chamber", "dahl"], candidates=["viscous"],
+               noise=noise, weights=sp.entry_weights(), alpha=0.05, min_gain=0.05)

@@ -38,6 +38,7 @@ import numpy as np
 from scipy import stats
 
 from fitstiff.diagnosis.supermodel import SuperProblem
+from fitstiff.errors import FitstiffError
 from fitstiff.physics.params import Param
 from fitstiff.physics.terms import TERMS
 from fitstiff.signal.noise import NoiseFloor, noise_floor
@@ -129,6 +130,20 @@ def _orthonormal(b: np.ndarray) -> np.ndarray:
     return u[:, sv > 1e-10 * sv[0]]
 
 
+def _check_finite(sp: SuperProblem, r: np.ndarray, base: np.ndarray, cols: np.ndarray) -> None:
+    """The current fit's residuals and its own columns must be finite: the screen's
+    projections are meaningless otherwise (a candidate's column that is not finite makes
+    that candidate untestable instead, :func:`_score`)."""
+    bad = [k for k, ok in zip(cols, np.isfinite(base).all(axis=0)) if not ok]
+    if np.isfinite(r).all() and not bad:
+        return
+    names = sp.problem.par.names
+    where = ", ".join(names[k] if k < sp.n_model else f"nuisance {k - sp.n_model}"
+                      for k in bad[:8]) or "the residuals"
+    raise FitstiffError(f"the diagnosis' screen: the current fit's derivatives are not finite "
+                        f"({where}); the fit has left the model's valid range")
+
+
 def screen(sp: SuperProblem, theta: np.ndarray, hold: np.ndarray, *, active: Sequence[str],
            candidates: Sequence[str], noise: Sequence[NoiseFloor], weights: np.ndarray,
            alpha: float, min_gain: float) -> tuple[list[Score], np.ndarray]:
@@ -151,6 +166,7 @@ def screen(sp: SuperProblem, theta: np.ndarray, hold: np.ndarray, *, active: Seq
     base_cols = np.concatenate([np.flatnonzero(free_model),
                                 sp.n_model + np.arange(sp.size - sp.n_model)])
     base = jf[:, base_cols]
+    _check_finite(sp, rf, base, base_cols)
     q = _orthonormal(base)
     r_perp = rf - q @ (q.T @ rf)
     dof = max(rf.size - q.shape[1], 1)
@@ -364,6 +380,12 @@ def _score(effect: str, sp: SuperProblem, tested: np.ndarray, g_cols: np.ndarray
     left = np.linalg.norm(g_perp @ direction_vec)
     lower_bounded = [sp.problem.par.entries[k].param.lower == sp.owners[k].null
                      for k in tested]
+    if not np.isfinite(g_cols).all():
+        bad = int((~np.isfinite(g_cols)).any(axis=1).sum())
+        return Score(effect, 0.0, len(tested), 1.0, 0.0, 0.0, False,
+                     f"its derivative is not finite at the current fit ({bad} of "
+                     f"{g_cols.shape[0]} rows): it cannot be screened there", None, main,
+                     param, {}, {})
     if raw == 0 or left**2 < _COLLINEAR * raw**2 or s2 <= 0:
         reason = ("the logs do not excite it (its effect on the force is zero)" if raw == 0
                   else "with these logs it cannot be told apart from the baseline's parameters")

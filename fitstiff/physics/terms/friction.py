@@ -31,8 +31,21 @@ _SIGMA0 = Param("sigma0", "N/mm", 1e3, 0.0, np.inf, "pre-sliding stiffness after
 _FC = Param("Fc", "N", 1.0, 0.0, np.inf, "Coulomb (sliding) friction level")
 
 
+#: a friction level (N) below which a model's rate ``sigma0 / Fc`` is taken at this level:
+#: a fit may drive a friction base to nothing when another law takes its place (Dahl's Fc
+#: reached 7e-215 N beside Maxwell-slip elements), and forward-mode derivatives of ``a / Fc``
+#: carry ``a * dFc / Fc**2``, NaN when ``Fc**2`` underflows even where ``dFc`` is 0
+_LEAST_LEVEL = 1e-12
+
+
 def _direction(dx):
     return jnp.sign(dx)
+
+
+def _divisor(level):
+    """``level`` as a divisor: at least :data:`_LEAST_LEVEL` (the force it scales is then
+    below a piconewton: the same model)."""
+    return jnp.maximum(level, _LEAST_LEVEL)
 
 
 class Dahl(FrictionBase):
@@ -68,11 +81,11 @@ class Dahl(FrictionBase):
         fc = self.Fc * mod.level_or()
         sigma = self.sigma0 * mod.slope_or()
         d = _direction(s.dx)
-        c = sigma * jnp.abs(s.dx) / fc
+        c = sigma * jnp.abs(s.dx) / _divisor(fc)
         if not self.fit_alpha:
             F_new = d * fc + (F - d * fc) * jnp.exp(-c)
             return F_new, F_new
-        y = 1.0 - F * d / fc
+        y = 1.0 - F * d / _divisor(fc)
         beta = 1.0 - self.alpha
         ay = jnp.maximum(jnp.abs(y), 1e-300)
         near_one = jnp.abs(beta) < 1e-6
@@ -95,7 +108,7 @@ class Dahl(FrictionBase):
             return None
         x0 = runs.start(steps.x)
         travel = runs.sign * (jnp.concatenate([x0[1:], steps.x[-1:]]) - x0)
-        rate = self.sigma0 / self.Fc
+        rate = self.sigma0 / _divisor(self.Fc)
 
         def across(F, run):
             s, travel = run
@@ -157,8 +170,8 @@ class LuGre(FrictionBase):
         sigma = self.sigma0 * mod.slope_or()
         d = _direction(s.dx)
         z_ss = d * g / sigma
-        z_new = z_ss + (z - z_ss) * jnp.exp(-sigma * jnp.abs(s.dx) / g)
-        z_dot = s.v - sigma * jnp.abs(s.v) * z_new / g
+        z_new = z_ss + (z - z_ss) * jnp.exp(-sigma * jnp.abs(s.dx) / _divisor(g))
+        z_dot = s.v - sigma * jnp.abs(s.v) * z_new / _divisor(g)
         return z_new, sigma * z_new + self.sigma1 * z_dot
 
     def start(self, estimate: FrictionEstimate, *, share: float = 1.0) -> LuGre:
