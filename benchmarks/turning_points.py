@@ -7,7 +7,8 @@ force on the whole return branch by about the pre-sliding stiffness times ``e`` 
 :func:`fitstiff._testing.rig_sim.render` rounds them) and sines on the independent simulator's
 fine grid, samples them at 200, 500 and 1000 Hz with the withheld-effect benchmark's sensor
 noise (0.73 um white, 1 um encoder quantum), and compares every turning point of
-:func:`fitstiff.segments.denoise.turning_points` with the fine path's extremum. Per case: the
+:func:`fitstiff.segments.denoise.turning_points` (given the segmentation's pauses, as a fit
+gives them) with the fine path's extremum. Per case: the
 mean outward error and its scatter (um), for the fitted turns and, as the reference measured
 in the same run, for the raw extreme sample.
 
@@ -60,7 +61,9 @@ def outward_errors(program, rate_hz: float, seed: int) -> tuple[np.ndarray, np.n
     """Outward errors (m) of the fitted and of the raw turning points against the fine
     path's extrema."""
     import fitstiff._testing.rig_sim as rs
+    from fitstiff.io.log import Log
     from fitstiff.segments.denoise import reversal_samples, turning_points
+    from fitstiff.segments.segmentation import segment
     from fitstiff.signal.noise import estimate_noise
 
     _, fine = rs.render(program, rate_hz, SUBSTEPS)
@@ -69,7 +72,11 @@ def outward_errors(program, rate_hz: float, seed: int) -> tuple[np.ndarray, np.n
     keep = (reversals > 40) & (reversals < sampled.size - 40)
     rng = np.random.default_rng(seed)
     x = np.round((sampled + NOISE_M * rng.standard_normal(sampled.size)) / QUANTUM_M) * QUANTUM_M
-    _, fitted, _ = turning_points(x, reversals[keep], noise=estimate_noise(x))
+    # the pauses as a fit finds them (the segmentation's standstills), as Problem passes them
+    log = Log(name="turns", displacement=x, force=np.zeros_like(x),
+              time=np.arange(x.size) / rate_hz)
+    _, fitted, _ = turning_points(x, reversals[keep], noise=estimate_noise(x),
+                                  still=segment(log).still)
     raw = x[reversal_samples(x, reversals[keep])]
     return (fitted - apex[keep]) * sign[keep], (raw - apex[keep]) * sign[keep]
 

@@ -334,7 +334,8 @@ class Problem:
                 if self.denoised[i]:
                     # a denoised log's turning points are local fits: their own errors
                     index, _, error = turning_points(self.logs[i].displacement,
-                                                     seg.reversals, noise=seg.noise, rho=rho)
+                                                     seg.reversals, noise=seg.noise, rho=rho,
+                                                     still=seg.still)
                     row[index] = error
                 else:
                     x = np.asarray(self.drives[i].displacement)
