@@ -639,8 +639,8 @@ def test_a_maxwell_slip_law_takes_the_friction_over_from_the_dahl_base():
     taken the base's friction over (``_refit._handover``) it removes most of it. With its
     slip displacements fitted (they start on the grid) it removes the whole gap: held-out
     RMS 1.43 -> 0.385 N against a 0.598 N floor, where the grid held left 0.635 N and a rig
-    compliance screening at p 1e-71 in the next round. Once accepted, later rounds start
-    from the slip displacements it was accepted with
+    compliance screening at p 1e-71 in the next round. Once accepted, its slip
+    displacements stay those it was fitted with
     (:func:`test_an_accepted_maxwell_slip_keeps_its_slip_displacements`)."""
     from fitstiff._testing.withheld import make_dataset
     from fitstiff.diagnosis import diagnose

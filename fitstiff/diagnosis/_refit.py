@@ -283,12 +283,11 @@ def _handover(sp: SuperProblem, x: np.ndarray, active, effect: str) -> np.ndarra
 
 
 def maxwell_shape(sp: SuperProblem, theta, hold, active) -> np.ndarray:
-    """Start values of the Maxwell-slip candidate's slip displacements (its refits fit them
-    with the stiffnesses) from the baseline's Fc / sigma0. Once accepted (in ``active``), its
-    fits start from the slip displacements it was accepted with: after a handover
-    (:func:`_handover`) the base's Fc / sigma0 no longer describe the seal, and a grid drawn
-    from them put the next round's refits at 12-15 N held out against 0.54 N (withheld
-    ``law/maxwell_slip/2``)."""
+    """Slip displacements of the Maxwell-slip candidate from the baseline's Fc / sigma0.
+    Once accepted (in ``active``), its slip displacements stay those its stiffnesses were
+    fitted with: after a handover (:func:`_handover`) the base's Fc / sigma0 no longer
+    describe the seal, and a grid drawn from them put the next round's refits at 12-15 N
+    held out against 0.54 N (withheld ``law/maxwell_slip/2``)."""
     entries = sp.elements("maxwell_slip", tested=False)
     if entries.size == 0 or "maxwell_slip" in active:
         return hold
