@@ -52,16 +52,12 @@ _NEEDS_FRICTION = ("stribeck", "asymmetry", "pressure_friction", "dwell_stiction
                    "maxwell_slip")
 _NEEDS_CHAMBER = ("heat_transfer", "leakage")
 #: candidates whose shape parameters stay where the diagnosis puts them while their tested
-#: parameters are refitted. None now: Maxwell-slip's slip displacements start on a
-#: log-spaced grid (scaled by the baseline's Fc / sigma0, :func:`~fitstiff.diagnosis._refit.
-#: maxwell_shape`) and are fitted with the stiffnesses. Held on the grid, a seal whose whole
-#: friction is three Maxwell-slip elements kept 0.52-0.78 N of in-sample RMS against a
-#: 0.19-0.27 N noise (withheld law/maxwell_slip/0, /2, /4: slip forces k delta the grid
-#: cannot place), and the diagnosis accepted a rig compliance beside it; fitted from the
-#: grid, the same fits reach the noise in 108-147 solver steps. (Freeing them was once
-#: ill-posed, 200 steps without converging on the speed benchmark's logs, before the
-#: candidate could take the friction over from the Dahl base, ``_refit._handover``.)
-FIXED_SHAPE: tuple[str, ...] = ()
+#: parameters are refitted: Maxwell-slip's slip displacements form a fixed log-spaced grid
+#: (scaled by the baseline's Fc / sigma0) and only the element stiffnesses are fitted, the
+#: usual identification of a generalised Maxwell-slip model (the force is then linear in
+#: them); freeing the grid too makes the refit ill-posed (measured: 200 steps without
+#: converging on the speed benchmark's logs)
+FIXED_SHAPE = ("maxwell_slip",)
 #: tolerance of the diagnosis' solves (steps relative to the entries, cost changes relative to
 #: the cost); the decisions compare held-out RMS values at a resolution of 5 % of the noise
 #: floor, far coarser than the 1e-5 relative cost change at which a solve stops
