@@ -43,6 +43,15 @@ def _turns(rate_hz: float, seeds: int):
     return np.array(fitted), np.array(denoised), np.array(reported)
 
 
+def _ar1_noise(rng: np.random.Generator, n: int, rho: float) -> np.ndarray:
+    """``n`` samples of AR(1) noise of unit marginal variance and lag-1 correlation ``rho``."""
+    e = np.empty(n)
+    e[0] = rng.normal()
+    for k in range(1, n):
+        e[k] = rho * e[k - 1] + np.sqrt(1 - rho**2) * rng.normal()
+    return e
+
+
 @pytest.mark.parametrize("rate_hz, seeds, tolerance_um", [(1000.0, 20, 0.25),
                                                            (10000.0, 8, 0.15)])
 def test_turning_points_are_unbiased(rate_hz, seeds, tolerance_um):
@@ -73,12 +82,7 @@ def test_turning_point_errors_allow_for_correlated_displacement_noise():
     true = np.flatnonzero(np.diff(np.sign(np.diff(x))) != 0) + 1
     z_white, z_ar1 = [], []
     for seed in range(12):
-        rng = np.random.default_rng(seed)
-        e = np.empty(x.size)
-        e[0] = rng.normal()
-        for k in range(1, x.size):
-            e[k] = 0.7 * e[k - 1] + np.sqrt(1 - 0.7**2) * rng.normal()
-        xn = x + NOISE * e
+        xn = x + NOISE * _ar1_noise(np.random.default_rng(seed), x.size, 0.7)
         seg = segment(Log(name="ar1", displacement=xn, force=np.zeros_like(x), time=t))
         assert seg.reversals.size == true.size
         level, rho = estimate_noise(xn), noise_floor(xn).rho
@@ -341,12 +345,7 @@ def test_a_turn_in_a_pause_stands_at_the_pause_mean_with_its_error():
     t = np.arange(x.size) / rate
     z, errors, local = [], [], []
     for seed in range(40):
-        rng = np.random.default_rng(seed)
-        e = np.empty(x.size)
-        e[0] = rng.normal()
-        for k in range(1, x.size):
-            e[k] = 0.6 * e[k - 1] + np.sqrt(1 - 0.6**2) * rng.normal()
-        xn = x + 0.7e-6 * e
+        xn = x + 0.7e-6 * _ar1_noise(np.random.default_rng(seed), x.size, 0.6)
         seg = segment(Log(name="pause", displacement=xn, force=np.zeros_like(xn), time=t))
         assert seg.pauses.shape[0] == 1 and seg.reversals.size == 1
         start, stop = seg.pauses[0]

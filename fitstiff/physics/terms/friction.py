@@ -81,11 +81,12 @@ class Dahl(FrictionBase):
         fc = self.Fc * mod.level_or()
         sigma = self.sigma0 * mod.slope_or()
         d = _direction(s.dx)
-        c = sigma * jnp.abs(s.dx) / _divisor(fc)
+        divisor = _divisor(fc)
+        c = sigma * jnp.abs(s.dx) / divisor
         if not self.fit_alpha:
             F_new = d * fc + (F - d * fc) * jnp.exp(-c)
             return F_new, F_new
-        y = 1.0 - F * d / _divisor(fc)
+        y = 1.0 - F * d / divisor
         beta = 1.0 - self.alpha
         ay = jnp.maximum(jnp.abs(y), 1e-300)
         near_one = jnp.abs(beta) < 1e-6
