@@ -143,3 +143,41 @@ def test_a_folds_heldout_rms_does_not_depend_on_its_start(one_effect):
     assert a.converged and b.converged
     assert a.rms_per_log_N == pytest.approx(b.rms_per_log_N, rel=0.01)
     assert a.rms_per_log_N == pytest.approx(d.gap["final_heldout_rms_per_log_N"], rel=0.01)
+
+
+def test_a_batch_of_models_held_out_together_gives_each_ones_own_figures(one_effect):
+    """Speed (issue 31): a round's candidates share the fold threads
+    (:func:`~fitstiff.diagnosis.select.held_out_batch`). Each model's held-out residuals,
+    steps and fold fits are those of its own :func:`held_out`, to the bit, whatever the
+    batch holds and in which order."""
+    from fitstiff.diagnosis.select import (FoldFit, Job, fold_starts, folds_for, held_out,
+                                           held_out_batch)
+    from fitstiff.diagnosis.supermodel import SuperProblem
+
+    logs, d = one_effect
+    sp = SuperProblem(logs, d.baseline, list(d.settings["candidates"]))
+    folds = folds_for(sp)
+    base = list(sp.baseline_terms)
+    cold = fold_starts(sp, folds)
+    k = sp.problem.par.names.index("c")
+    starts = []
+    for f in cold:
+        hold = f.hold.copy()
+        hold[k] = 60.0
+        starts.append(FoldFit(sp.to_theta(f.theta, hold, np.array([k])), hold))
+    jobs = [Job(cold, base), Job(starts, base, sp.elements("viscous", fitted=True)),
+            Job(cold, base, sp.elements("force_drift", fitted=True))]
+    alone = [held_out(sp, folds, j.starts, j.active, extra=j.extra) for j in jobs]
+    for order in ([0, 1, 2], [2, 0, 1]):
+        together = held_out_batch(sp, folds, [jobs[i] for i in order])
+        for i, ho in zip(order, together):
+            a = alone[i]
+            assert ho.rms_N == a.rms_N and ho.steps == a.steps
+            assert ho.converged == a.converged
+            for r, s in zip(ho.residuals, a.residuals):
+                np.testing.assert_array_equal(r, s)
+            for f, g in zip(ho.fits, a.fits):
+                np.testing.assert_array_equal(f.theta, g.theta)
+                np.testing.assert_array_equal(f.hold, g.hold)
+    # the viscous refit is the one that moves the held-out RMS
+    assert alone[1].rms_N < alone[0].rms_N

@@ -15,7 +15,7 @@ import numpy as np
 
 from fitstiff.diagnosis._refit import FoldStarts, Start, Tried, judge, refit_start
 from fitstiff.diagnosis.screen import Score, collinear_groups
-from fitstiff.diagnosis.select import MIN_GAIN, HeldOut, held_out
+from fitstiff.diagnosis.select import MIN_GAIN, HeldOut, Job, held_out_batch
 from fitstiff.diagnosis.supermodel import SuperProblem
 from fitstiff.inference.comparison import TIE
 
@@ -115,11 +115,13 @@ def pair(sp: SuperProblem, folds, tried: Mapping[str, Tried], starts: FoldStarts
     one-step values of that fold on top."""
     top = partners(tried, current)
     best: _PairFit | None = None
-    for a, b in itertools.combinations(top, 2):
-        fold_start = starts.of(b.effect, on=a.starts)
-        extra = np.concatenate([sp.elements(a.effect, fitted=True),
-                                sp.elements(b.effect, fitted=True)])
-        ho = held_out(sp, folds, fold_start, active, extra=extra)
+    pairs = list(itertools.combinations(top, 2))
+    jobs = [Job(starts.of(b.effect, on=a.starts), active,
+                np.concatenate([sp.elements(a.effect, fitted=True),
+                                sp.elements(b.effect, fitted=True)])) for a, b in pairs]
+    # the pairs' folds share the fold threads (held_out_batch)
+    for (a, b), job, ho in zip(pairs, jobs, held_out_batch(sp, folds, jobs)):
+        fold_start = job.starts
         t = judge(sp, a.score, ho, fold_start, current=current, noise=noise,
                   min_shrink=min_shrink, effects=[a.effect, b.effect])
         passes = (t.passes

@@ -29,7 +29,8 @@ from fitstiff.diagnosis._refit import FoldStarts, Tried, fold_fits, judge
 from fitstiff.diagnosis.prune import prune
 from fitstiff.diagnosis.result import Candidate
 from fitstiff.diagnosis.screen import Score, screen
-from fitstiff.diagnosis.select import MIN_GAIN, Fold, FoldFit, HeldOut, held_out
+from fitstiff.diagnosis.select import (MIN_GAIN, Fold, FoldFit, HeldOut, Job,
+                                      held_out_batch)
 from fitstiff.diagnosis.supermodel import SuperProblem
 from fitstiff.signal.noise import NoiseFloor
 
@@ -131,16 +132,20 @@ def _refits(st: Setting, s: Search, starts: FoldStarts) -> dict[str, Tried]:
     promising = sorted((x for x in s.scores if x.testable and x.p_value * m < st.alpha),
                        key=lambda x: x.log_p)
     tried: dict[str, Tried] = {}
-    for k, score in enumerate(promising):
-        if k and k % MAX_REFITS == 0 and any(v.passes for v in tried.values()):
+    for b in range(0, len(promising), MAX_REFITS):
+        if b and any(v.passes for v in tried.values()):
             break
-        entries = st.sp.elements(score.effect, fitted=True)
+        batch = promising[b:b + MAX_REFITS]
+        names = [x.effect for x in batch]
         with phase(st.spent, "refits"):
-            fold_start = starts.of(score.effect, batch=[t.effect for t in
-                                                        promising[k:k + MAX_REFITS]])
-            ho = held_out(st.sp, st.folds, fold_start, s.active, extra=entries)
-        tried[score.effect] = judge(st.sp, score, ho, fold_start, current=s.current,
-                                    noise=st.noise_pooled, min_shrink=st.min_shrink)
+            fold_start = [starts.of(x.effect, batch=names) for x in batch]
+            # the batch's folds share the fold threads (held_out_batch)
+            heldout = held_out_batch(st.sp, st.folds, [
+                Job(f, s.active, st.sp.elements(x.effect, fitted=True))
+                for x, f in zip(batch, fold_start)])
+        for score, ho, f in zip(batch, heldout, fold_start):
+            tried[score.effect] = judge(st.sp, score, ho, f, current=s.current,
+                                        noise=st.noise_pooled, min_shrink=st.min_shrink)
     return tried
 
 
@@ -203,7 +208,8 @@ def _take(st: Setting, s: Search, step: _Step) -> None:
         s.decided[effect] = dataclasses.replace(
             s.decided[effect], accepted=True, why="",
             parameters=parameter_entries(st.sp, values, "fit"),
-            reading=st.sp.problem.model.term(effect).reading())
+            reading=st.sp.problem.model.term(effect).reading(),
+            lookalike=st.sp.problem.model.term(effect).lookalike)
         s.accepted.append(effect)
     s.current = step.heldout
     s.fits = fold_fits(st.sp, s.current, s.active)

@@ -11,7 +11,7 @@ from typing import NamedTuple
 import numpy as np
 
 from fitstiff.diagnosis._refit import at_null
-from fitstiff.diagnosis.select import MIN_GAIN, FoldFit, HeldOut, held_out
+from fitstiff.diagnosis.select import MIN_GAIN, FoldFit, HeldOut, Job, held_out_batch
 from fitstiff.diagnosis.supermodel import SuperProblem
 
 __all__ = ["Pruned", "prune"]
@@ -74,10 +74,11 @@ def prune(sp: SuperProblem, folds, units: list[tuple[str, ...]], current: HeldOu
     units = list(units)
     while len(units) >= 2:
         worst = None
-        for unit in units:
-            rest = [t for t in active if t not in unit]
-            starts = [FoldFit(f.theta, at_null(sp, f.hold, unit)) for f in current.fits]
-            ho = held_out(sp, folds, starts, rest)
+        jobs = [Job([FoldFit(f.theta, at_null(sp, f.hold, unit)) for f in current.fits],
+                    [t for t in active if t not in unit]) for unit in units]
+        # the units' folds share the fold threads (held_out_batch)
+        for unit, job, ho in zip(units, jobs, held_out_batch(sp, folds, jobs)):
+            rest = list(job.active)
             gain = ho.rms_N - current.rms_N
             shrink = gain / (ho.rms_N - noise) if ho.rms_N > noise else float("nan")
             keeps = gain >= MIN_GAIN * noise and math.isfinite(shrink) and shrink >= min_shrink

@@ -47,14 +47,15 @@ import math
 import os
 from concurrent.futures import ThreadPoolExecutor
 from collections.abc import Sequence
+from typing import NamedTuple
 
 import numpy as np
 
 from fitstiff.diagnosis.supermodel import SuperProblem
 from fitstiff.errors import InputError
 
-__all__ = ["FOLD_THREADS", "Fold", "FoldFit", "HeldOut", "MIN_GAIN", "fold_starts", "folds_for",
-           "held_out"]
+__all__ = ["FOLD_THREADS", "Fold", "FoldFit", "HeldOut", "Job", "MIN_GAIN", "fold_starts",
+           "folds_for", "held_out", "held_out_batch"]
 
 #: least fall of the held-out RMS, as a share of the noise floor: the floor is estimated to a
 #: few per cent, so a smaller fall cannot be told from its error (on the stribeck set a time
@@ -162,26 +163,47 @@ def held_out(sp: SuperProblem, folds: Sequence[Fold], starts: Sequence[FoldFit],
     """Held-out residuals of the model made of the ``active`` terms (plus the model entries
     ``extra``), every fold from its own start (``starts``, one per fold: see the fold rule in
     the module docstring)."""
+    return held_out_batch(sp, folds, [Job(starts, active, extra)])[0]
+
+
+class Job(NamedTuple):
+    """One model to hold out (:func:`held_out_batch`): each fold's start, the ``active``
+    terms and the ``extra`` model entries freed beside them (a candidate's)."""
+
+    starts: Sequence[FoldFit]
+    active: Sequence[str]
+    extra: np.ndarray = np.zeros(0, int)
+
+
+def held_out_batch(sp: SuperProblem, folds: Sequence[Fold], jobs: Sequence[Job]
+                   ) -> list[HeldOut]:
+    """:func:`held_out` of several models (a round's batch of candidates) at once: every
+    fold of every model is an independent solve, and they share :data:`FOLD_THREADS` threads,
+    the largest training sets first. One model's folds alone keep a thread idle while the
+    other finishes its longest fold (at real size a leave-one-log-out fold trains on 44 800
+    samples or 19 200); a batch's folds fill it. The results do not depend on the order."""
     p = sp.problem
-    if len(starts) != len(folds):
-        raise ValueError(f"held_out: {len(starts)} starts for {len(folds)} folds")
-    free_model = sp.model_mask(active)
-    free_model[extra] = True
+    for job in jobs:
+        if len(job.starts) != len(folds):
+            raise ValueError(f"held_out: {len(job.starts)} starts for {len(folds)} folds")
     none = np.zeros(sp.n_model, dtype=bool)
 
-    def train(start: FoldFit, nuisances: np.ndarray, weights: np.ndarray):
-        """``(theta, converged, steps, hold)``: the training solve from ``start`` and from each
-        of its ``also``, the converged one of lowest training cost kept (steps: all)."""
-        th, ok, steps, _, hold = sp.solve_best((start, *start.also), free_model, nuisances,
-                                               weights)
-        return th, ok, steps, hold
-
-    def one(fold: Fold, start: FoldFit):
+    def one(job: Job, fold: Fold, start: FoldFit):
         """``(log, sample mask or None, residual, converged, steps, fit)`` of one fold."""
+        free_model = sp.model_mask(job.active)
+        free_model[job.extra] = True
         weights = fold.training(sp)
+
+        def train(nuisances: np.ndarray):
+            """``(theta, converged, steps, hold)``: the training solve from ``start`` and from
+            each of its ``also``, the converged one of lowest training cost kept (steps: all)."""
+            th, ok, steps, _, hold = sp.solve_best((start, *start.also), free_model, nuisances,
+                                                   weights)
+            return th, ok, steps, hold
+
         if fold.log is not None:
             others = [i for i in range(p.n_logs) if i != fold.log]
-            th, ok1, s1, hold = train(start, sp.nuisance_mask(others), weights)
+            th, ok1, s1, hold = train(sp.nuisance_mask(others))
             # the trained model held (in physical values), only the log's nuisances fitted
             x = np.asarray(sp.physical(th, hold, free_model))
             th_out, ok2, s2, _ = sp.solve(th, x, none, sp.nuisance_mask([fold.log]),
@@ -195,7 +217,7 @@ def held_out(sp: SuperProblem, folds: Sequence[Fold], starts: Sequence[FoldFit],
         # log's nuisances are
         own = (sp.nuisance_mask([i], names=_BLOCK_OWN) if mask[0]
                else np.zeros(sp.size - sp.n_model, dtype=bool))
-        th, ok, s1, hold = train(start, sp.nuisance_mask() & ~own, weights)
+        th, ok, s1, hold = train(sp.nuisance_mask() & ~own)
         x = np.asarray(sp.physical(th, hold, free_model))
         th_out, ok2, s2 = th, True, 0
         if own.any():
@@ -203,10 +225,20 @@ def held_out(sp: SuperProblem, folds: Sequence[Fold], starts: Sequence[FoldFit],
         force = sp.forces(x, th_out)[i]
         return i, mask, force - np.asarray(p.logs[i].force), ok and ok2, s1 + s2, FoldFit(th, x)
 
-    # the folds are independent: two at a time on two cores (the compiled scan runs on one
-    # core and releases the GIL); the results do not depend on the order
+    # the folds are independent: two at a time on two cores (the compiled scans run on one
+    # core and release the GIL), the largest training sets first
+    tasks = [(j, k) for j in range(len(jobs)) for k in range(len(folds))]
+    size = [float(np.sum(fold.training(sp))) for fold in folds]
+    order = sorted(tasks, key=lambda t: -size[t[1]])
     with ThreadPoolExecutor(max_workers=FOLD_THREADS) as pool:
-        done = list(pool.map(one, folds, starts))
+        futures = {t: pool.submit(one, jobs[t[0]], folds[t[1]], jobs[t[0]].starts[t[1]])
+                   for t in order}
+        done = {t: f.result() for t, f in futures.items()}
+    return [_gather(p, [done[(j, k)] for k in range(len(folds))]) for j in range(len(jobs))]
+
+
+def _gather(p, done) -> HeldOut:
+    """One model's :class:`HeldOut` from its folds' results (in fold order)."""
     residuals = [np.zeros(len(log)) for log in p.logs]
     converged, steps = True, 0
     for i, mask, res, ok, s, _ in done:

@@ -377,8 +377,7 @@ class _Solver:
         self._compiling = threading.Lock()
         self._warm: set[tuple] = set()
         self._solve = problem.compiled(_masked_solve)
-        self._forces = problem.compiled(_forces)
-        self._residuals = problem.compiled(_residuals)
+        self._outputs = problem.compiled(_outputs)
 
     def solve(self, theta0, hold, free_model, free_nuisance, weights, *, max_steps=200):
         """:meth:`SuperProblem.solve` on this problem."""
@@ -400,13 +399,13 @@ class _Solver:
 
     def forces(self, x, theta) -> list[np.ndarray]:
         """Predicted force (N) of every log, unpadded, in log order."""
-        return self.problem.unpad(self._once(("forces",), self._forces, jnp.asarray(x),
-                                             jnp.asarray(theta)))
+        return self.problem.unpad(self._once(("outputs",), self._outputs, jnp.asarray(x),
+                                             jnp.asarray(theta))[1])
 
     def residuals(self, x, theta) -> np.ndarray:
         """The residual vector at physical model values ``x``."""
-        return np.asarray(self._once(("residuals",), self._residuals, jnp.asarray(x),
-                                     jnp.asarray(theta)))
+        return np.asarray(self._once(("outputs",), self._outputs, jnp.asarray(x),
+                                     jnp.asarray(theta))[0])
 
     def _once(self, key, fn, *args):
         """``fn(*args)``; its first call per ``key`` (a compilation) by one thread at a time:
@@ -489,13 +488,14 @@ def _column(p: Problem, x, theta, tangent):
     return jax.jvp(lambda x: p.residuals_physical(x, theta), (x,), (tangent,))
 
 
-def _residuals(p: Problem, x, theta):
-    return p.residuals_physical(x, theta)
-
-
-def _forces(p: Problem, x, theta):
+def _outputs(p: Problem, x, theta):
+    """The residual vector and every stack's predicted force at physical model values ``x``:
+    one compiled function for both (a second would cost a compilation of the whole model,
+    about 2 s at real size, for outputs the first computes anyway)."""
     model = p.par.physical_to_model(x, p.model)
-    return [pred.force for pred in p.model_predictions(model, p.nuisances(theta))]
+    predictions = p.model_predictions(model, p.nuisances(theta))
+    return (p.model_residuals(model, p.nuisances(theta), predictions=predictions),
+            [pred.force for pred in predictions])
 
 
 def _masked_solve(p: Problem, theta_pad, index, hold, free_model, weights, max_steps):
