@@ -150,6 +150,12 @@ def test_diagnosis_of_the_four_logs_accepts_pressure_friction_only(candidates):
     assert "beta/2 per bar of supply" in accepted.reading and "p_ref = " in accepted.reading
     assert any(line.startswith("pressure_friction: friction levels") for line in
                result.verdict)
+    # what else draws the same force on logs of one pressure each, and what to record
+    # (the withheld benchmark read three out-of-library sets as pressure_friction)
+    assert "record two pressures at one position" in accepted.lookalike
+    assert any(line.startswith("pressure_friction could also be something outside the "
+                               "library: where each log has one supply pressure")
+               for line in result.verdict)
     # issue 31: the heat maps (RMS above the noise in N, one scale for before and after) show
     # the change: the z-score saturated every cell of these logs (values up to 1.8e5)
     from fitstiff.diagnosis.gap import region_summary

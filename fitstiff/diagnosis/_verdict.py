@@ -46,6 +46,8 @@ def verdict(baseline, accepted, decided, gap, still, noise, described=()) -> lis
     else:
         lines.append(_explained(accepted, decided, before, after, noise))
         lines += [f"{e}: {decided[e].reading}" for e in accepted if decided[e].reading]
+        lines += [f"{e} could also be something outside the library: {decided[e].lookalike}"
+                  for e in accepted if decided[e].lookalike]
     if still.empty:
         lines.append("nothing stays above the noise floor")
     else:

@@ -41,6 +41,9 @@ class Candidate:
     #: (:meth:`fitstiff.physics.terms.base.Term.reading`: pressure_friction's reference pressure and
     #: per-bar basis), for accepted effects
     reading: str = ""
+    #: what outside the library draws the same force, and what to record to tell them apart
+    #: (:attr:`fitstiff.physics.terms.base.Term.lookalike`), for accepted effects
+    lookalike: str = ""
     #: the p-value of its first screen (on the baseline, before any acceptance): what it
     #: explained of the baseline's gap, which an accepted effect may have taken since
     first_p_value: float | None = None

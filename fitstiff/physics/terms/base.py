@@ -119,6 +119,11 @@ class Term(eqx.Module):
     #: effects: the excitation that makes the effect testable (the diagnosis says to record it
     #: when the logs cannot test the effect)
     excitation: ClassVar[str] = ""
+    #: effects: what outside the library draws the same force on logs where the effect is
+    #: accepted, and what to record to tell them apart (one sentence; the diagnosis says it
+    #: beside an accepted effect); set where the withheld-effect benchmark has seen the
+    #: mix-up (docs/benchmarks.md, "What else looks like an accepted effect")
+    lookalike: ClassVar[str] = ""
     #: the drives need the chamber's rig values (bore; stroke, start position and supply
     #: pressure for a closed chamber)
     needs_chamber_geometry: ClassVar[bool] = False

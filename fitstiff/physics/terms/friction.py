@@ -203,6 +203,9 @@ class MaxwellSlip(FrictionBase):
     name = "maxwell_slip"
     summary = "Maxwell-slip: N elasto-slide elements (k_i, slip displacement delta_i); 'maxwell_slip:N'"
     excitation = "nested minor loops (a small reversal inside a larger loop) or triangles of several amplitudes"
+    lookalike = ("a hysteresis of the force sensor or of its mounting (the reading lagging the "
+                 "force) draws the same loops: load the sensor alone with known weights, up and "
+                 "down, to see whether it has one")
 
     k: jnp.ndarray = eqx.field(default_factory=lambda: jnp.full(4, 10e3))
     delta: jnp.ndarray = eqx.field(

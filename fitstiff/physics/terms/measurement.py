@@ -49,6 +49,10 @@ class _Compliance(Term):
     name = "rig_compliance"
     summary = "a spring in series between the displacement sensor and the piston"
     excitation = "reversals in the pre-sliding range (small-amplitude loops), where the seal is stiffest"
+    lookalike = ("a seal whose stiffest pre-sliding elements do not slip within the logs' "
+                 "reversals softens the pre-sliding slope the same way: with the piston "
+                 "blocked and the chambers vented, push on the rod and read the displacement "
+                 "sensor, which a stiff rig keeps still")
 
     compliance: float = 1e-6
 

@@ -73,6 +73,10 @@ class PressureFriction(Modifier):
     targets = FrictionBase
     summary = "friction level rises with chamber pressure: exp(beta (p - p_ref))"
     excitation = "logs at two or more supply pressures, or a logged chamber pressure that varies"
+    lookalike = ("where each log has one supply pressure, whatever else differs between the logs "
+                 "looks the same: a friction that drifts over the session, or that changes along "
+                 "the stroke when each log sits at another position: record two pressures at "
+                 "one position, and repeat the first log at the end of the session")
 
     beta: float = 0.0
     #: reference gauge pressure (Pa) at which the friction base's levels apply: given in the
