@@ -181,3 +181,12 @@ def test_a_batch_of_models_held_out_together_gives_each_ones_own_figures(one_eff
                 np.testing.assert_array_equal(f.hold, g.hold)
     # the viscous refit is the one that moves the held-out RMS
     assert alone[1].rms_N < alone[0].rms_N
+    # a fold with a second start (a handover) solves from both as separate tasks and keeps
+    # the better: the same start twice gives the one start's figures, with twice the
+    # training steps
+    twice = Job([FoldFit(f.theta, f.hold, (FoldFit(f.theta, f.hold),)) for f in starts],
+                base, sp.elements("viscous", fitted=True))
+    ho = held_out_batch(sp, folds, [jobs[0], twice])[1]
+    for r, s in zip(ho.residuals, alone[1].residuals):
+        np.testing.assert_array_equal(r, s)
+    assert alone[1].steps < ho.steps < 2 * alone[1].steps

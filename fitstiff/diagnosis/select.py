@@ -51,7 +51,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from fitstiff.diagnosis.supermodel import SuperProblem
+from fitstiff.diagnosis.supermodel import SuperProblem, best_solve
 from fitstiff.errors import InputError
 
 __all__ = ["FOLD_THREADS", "Fold", "FoldFit", "HeldOut", "Job", "MIN_GAIN", "fold_starts",
@@ -177,63 +177,81 @@ class Job(NamedTuple):
 
 def held_out_batch(sp: SuperProblem, folds: Sequence[Fold], jobs: Sequence[Job]
                    ) -> list[HeldOut]:
-    """:func:`held_out` of several models (a round's batch of candidates) at once: every
-    fold of every model is an independent solve, and they share :data:`FOLD_THREADS` threads,
-    the largest training sets first. One model's folds alone keep a thread idle while the
-    other finishes its longest fold (at real size a leave-one-log-out fold trains on 44 800
-    samples or 19 200); a batch's folds fill it. The results do not depend on the order."""
+    """:func:`held_out` of several models (a round's batch of candidates) at once. Every
+    training solve (each fold of each model, from each of its starts) is an independent
+    task, and the tasks share :data:`FOLD_THREADS` threads, the largest training sets first;
+    then each fold keeps its best training solve and predicts its held-out part. One model's
+    folds alone keep a thread idle while the other finishes its longest fold (at real size a
+    leave-one-log-out fold trains on 44 800 samples or 19 200, and a fold with a handover
+    start solves twice); a batch's solves fill it. The results do not depend on the order."""
     p = sp.problem
     for job in jobs:
         if len(job.starts) != len(folds):
             raise ValueError(f"held_out: {len(job.starts)} starts for {len(folds)} folds")
     none = np.zeros(sp.n_model, dtype=bool)
 
-    def one(job: Job, fold: Fold, start: FoldFit):
-        """``(log, sample mask or None, residual, converged, steps, fit)`` of one fold."""
-        free_model = sp.model_mask(job.active)
-        free_model[job.extra] = True
-        weights = fold.training(sp)
+    def free(job: Job) -> np.ndarray:
+        out = sp.model_mask(job.active)
+        out[job.extra] = True
+        return out
 
-        def train(nuisances: np.ndarray):
-            """``(theta, converged, steps, hold)``: the training solve from ``start`` and from
-            each of its ``also``, the converged one of lowest training cost kept (steps: all)."""
-            th, ok, steps, _, hold = sp.solve_best((start, *start.also), free_model, nuisances,
-                                                   weights)
-            return th, ok, steps, hold
-
+    def nuisances(fold: Fold) -> tuple[np.ndarray, np.ndarray]:
+        """The nuisances the fold trains, and those only its held-out part owns."""
         if fold.log is not None:
             others = [i for i in range(p.n_logs) if i != fold.log]
-            th, ok1, s1, hold = train(sp.nuisance_mask(others))
-            # the trained model held (in physical values), only the log's nuisances fitted
-            x = np.asarray(sp.physical(th, hold, free_model))
-            th_out, ok2, s2, _ = sp.solve(th, x, none, sp.nuisance_mask([fold.log]),
-                                          sp.entry_weights(logs=[fold.log]))
-            force = sp.forces(x, th_out)[fold.log]
-            return (fold.log, None, force - np.asarray(p.logs[fold.log].force), ok1 and ok2,
-                    s1 + s2, FoldFit(th, x))
+            return sp.nuisance_mask(others), sp.nuisance_mask([fold.log])
         i, mask = fold.samples
         # a block that holds the log's first sample owns its initial friction state (the
         # rest of the log does not inform it): fitted to the block alone, as a left-out
         # log's nuisances are
         own = (sp.nuisance_mask([i], names=_BLOCK_OWN) if mask[0]
                else np.zeros(sp.size - sp.n_model, dtype=bool))
-        th, ok, s1, hold = train(sp.nuisance_mask() & ~own)
-        x = np.asarray(sp.physical(th, hold, free_model))
+        return sp.nuisance_mask() & ~own, own
+
+    def train(job: Job, fold: Fold, start: FoldFit):
+        """One training solve: ``(theta, converged, steps, cost, hold)``."""
+        return (*sp.solve(start.theta, start.hold, free(job), nuisances(fold)[0],
+                          fold.training(sp)), start.hold)
+
+    def predict(job: Job, fold: Fold, solves):
+        """``(log, sample mask or None, residual, converged, steps, fit)`` of one fold from
+        its training solves (the converged one of lowest training cost kept): the trained
+        model held (in physical values), only the held-out part's own nuisances fitted."""
+        th, ok, steps, _, hold = best_solve(solves)
+        x = np.asarray(sp.physical(th, hold, free(job)))
+        own = nuisances(fold)[1]
+        if fold.log is not None:
+            i, mask, weights = fold.log, None, sp.entry_weights(logs=[fold.log])
+        else:
+            i, mask = fold.samples
+            weights = sp.entry_weights(samples={i: mask})
         th_out, ok2, s2 = th, True, 0
         if own.any():
-            th_out, ok2, s2, _ = sp.solve(th, x, none, own, sp.entry_weights(samples={i: mask}))
+            th_out, ok2, s2, _ = sp.solve(th, x, none, own, weights)
         force = sp.forces(x, th_out)[i]
-        return i, mask, force - np.asarray(p.logs[i].force), ok and ok2, s1 + s2, FoldFit(th, x)
+        return i, mask, force - np.asarray(p.logs[i].force), ok and ok2, steps + s2, FoldFit(th, x)
 
-    # the folds are independent: two at a time on two cores (the compiled scans run on one
+    # the solves are independent: two at a time on two cores (the compiled scans run on one
     # core and release the GIL), the largest training sets first
-    tasks = [(j, k) for j in range(len(jobs)) for k in range(len(folds))]
     size = [float(np.sum(fold.training(sp))) for fold in folds]
-    order = sorted(tasks, key=lambda t: -size[t[1]])
+    tasks = sorted(((j, k, n) for j, job in enumerate(jobs) for k in range(len(folds))
+                    for n in range(1 + len(job.starts[k].also))), key=lambda t: -size[t[1]])
+
+    def start_of(j: int, k: int, n: int) -> FoldFit:
+        first = jobs[j].starts[k]
+        return first if n == 0 else first.also[n - 1]
+
     with ThreadPoolExecutor(max_workers=FOLD_THREADS) as pool:
-        futures = {t: pool.submit(one, jobs[t[0]], folds[t[1]], jobs[t[0]].starts[t[1]])
-                   for t in order}
-        done = {t: f.result() for t, f in futures.items()}
+        futures = {t: pool.submit(train, jobs[t[0]], folds[t[1]], start_of(*t)) for t in tasks}
+        solves = {t: f.result() for t, f in futures.items()}
+
+        def fold_of(jk: tuple[int, int]):
+            j, k = jk
+            n_starts = 1 + len(jobs[j].starts[k].also)
+            return predict(jobs[j], folds[k], [solves[(j, k, n)] for n in range(n_starts)])
+
+        pairs = [(j, k) for j in range(len(jobs)) for k in range(len(folds))]
+        done = dict(zip(pairs, pool.map(fold_of, pairs)))
     return [_gather(p, [done[(j, k)] for k in range(len(folds))]) for j in range(len(jobs))]
 
 

@@ -42,7 +42,7 @@ from fitstiff.physics.terms import EFFECTS, FRICTION_BASES, TERMS
 from fitstiff.physics.terms.base import Modifier, SeriesTerm
 from fitstiff.physics.terms.chamber import Chamber
 
-__all__ = ["CANDIDATES", "SuperProblem", "candidate_names", "spec_token", "Owner"]
+__all__ = ["CANDIDATES", "SuperProblem", "best_solve", "candidate_names", "spec_token", "Owner"]
 
 #: every effect the diagnosis can name (DESIGN §3), ``chamber`` for friction-only baselines
 CANDIDATES = EFFECTS + ("chamber",)
@@ -318,17 +318,9 @@ class SuperProblem:
         """:meth:`solve` from each of ``starts`` (objects with ``theta`` and ``hold``); returns
         ``(theta, converged, steps, cost, hold)`` of the converged solve of lowest cost (the
         lowest cost when none converged), ``steps`` summed over all, ``hold`` its start's."""
-        best, steps = None, 0
-        for start in starts:
-            theta, ok, n, cost = self.solve(start.theta, start.hold, free_model,
-                                            free_nuisance, weights, max_steps=max_steps)
-            steps += int(n)
-            cost = float(cost) if np.isfinite(cost) else np.inf
-            key = (not bool(ok), cost)
-            if best is None or key < best[0]:
-                best = (key, theta, bool(ok), cost, start.hold)
-        _, theta, ok, cost, hold = best
-        return theta, ok, steps, cost, hold
+        return best_solve([(*self.solve(start.theta, start.hold, free_model, free_nuisance,
+                                        weights, max_steps=max_steps), start.hold)
+                           for start in starts])
 
     def _live_heavy(self, x, free_model=None) -> bool:
         """Whether a heavy candidate is in the model: free, or held away from its null."""
@@ -486,6 +478,21 @@ def _jacobian(p: Problem, x, theta, *, n_model: int):
 
 def _column(p: Problem, x, theta, tangent):
     return jax.jvp(lambda x: p.residuals_physical(x, theta), (x,), (tangent,))
+
+
+def best_solve(solves) -> tuple:
+    """Of several solves of one problem from different starts, each ``(theta, converged,
+    steps, cost, hold)`` in the starts' order: the converged one of lowest cost (the lowest
+    cost when none converged; the first on a tie), with ``steps`` summed over all."""
+    best, steps = None, 0
+    for theta, ok, n, cost, hold in solves:
+        steps += int(n)
+        cost = float(cost) if np.isfinite(cost) else np.inf
+        key = (not bool(ok), cost)
+        if best is None or key < best[0]:
+            best = (key, theta, bool(ok), cost, hold)
+    _, theta, ok, cost, hold = best
+    return theta, ok, steps, cost, hold
 
 
 def _outputs(p: Problem, x, theta):
