@@ -208,18 +208,23 @@ def held_out_batch(sp: SuperProblem, folds: Sequence[Fold], jobs: Sequence[Job]
                else np.zeros(sp.size - sp.n_model, dtype=bool))
         return sp.nuisance_mask() & ~own, own
 
-    def train(job: Job, fold: Fold, start: FoldFit):
-        """One training solve: ``(theta, converged, steps, cost, hold)``."""
-        return (*sp.solve(start.theta, start.hold, free(job), nuisances(fold)[0],
-                          fold.training(sp)), start.hold)
+    # per model its free entries, per fold its training weights and nuisance masks: once
+    frees = [free(job) for job in jobs]
+    training = [fold.training(sp) for fold in folds]
+    masks = [nuisances(fold) for fold in folds]
 
-    def predict(job: Job, fold: Fold, solves):
+    def train(j: int, k: int, start: FoldFit):
+        """One training solve: ``(theta, converged, steps, cost, hold)``."""
+        return (*sp.solve(start.theta, start.hold, frees[j], masks[k][0], training[k]),
+                start.hold)
+
+    def predict(j: int, k: int, solves):
         """``(log, sample mask or None, residual, converged, steps, fit)`` of one fold from
         its training solves (the converged one of lowest training cost kept): the trained
         model held (in physical values), only the held-out part's own nuisances fitted."""
+        fold, own = folds[k], masks[k][1]
         th, ok, steps, _, hold = best_solve(solves)
-        x = np.asarray(sp.physical(th, hold, free(job)))
-        own = nuisances(fold)[1]
+        x = np.asarray(sp.physical(th, hold, frees[j]))
         if fold.log is not None:
             i, mask, weights = fold.log, None, sp.entry_weights(logs=[fold.log])
         else:
@@ -233,7 +238,7 @@ def held_out_batch(sp: SuperProblem, folds: Sequence[Fold], jobs: Sequence[Job]
 
     # the solves are independent: two at a time on two cores (the compiled scans run on one
     # core and release the GIL), the largest training sets first
-    size = [float(np.sum(fold.training(sp))) for fold in folds]
+    size = [float(np.sum(w)) for w in training]
     tasks = sorted(((j, k, n) for j, job in enumerate(jobs) for k in range(len(folds))
                     for n in range(1 + len(job.starts[k].also))), key=lambda t: -size[t[1]])
 
@@ -242,13 +247,13 @@ def held_out_batch(sp: SuperProblem, folds: Sequence[Fold], jobs: Sequence[Job]
         return first if n == 0 else first.also[n - 1]
 
     with ThreadPoolExecutor(max_workers=FOLD_THREADS) as pool:
-        futures = {t: pool.submit(train, jobs[t[0]], folds[t[1]], start_of(*t)) for t in tasks}
+        futures = {t: pool.submit(train, t[0], t[1], start_of(*t)) for t in tasks}
         solves = {t: f.result() for t, f in futures.items()}
 
         def fold_of(jk: tuple[int, int]):
             j, k = jk
             n_starts = 1 + len(jobs[j].starts[k].also)
-            return predict(jobs[j], folds[k], [solves[(j, k, n)] for n in range(n_starts)])
+            return predict(j, k, [solves[(j, k, n)] for n in range(n_starts)])
 
         pairs = [(j, k) for j in range(len(jobs)) for k in range(len(folds))]
         done = dict(zip(pairs, pool.map(fold_of, pairs)))

@@ -499,9 +499,9 @@ def _outputs(p: Problem, x, theta):
     """The residual vector and every stack's predicted force at physical model values ``x``:
     one compiled function for both (a second would cost a compilation of the whole model,
     about 2 s at real size, for outputs the first computes anyway)."""
-    model = p.par.physical_to_model(x, p.model)
-    predictions = p.model_predictions(model, p.nuisances(theta))
-    return (p.model_residuals(model, p.nuisances(theta), predictions=predictions),
+    model, nuisances = p.par.physical_to_model(x, p.model), p.nuisances(theta)
+    predictions = p.model_predictions(model, nuisances)
+    return (p.model_residuals(model, nuisances, predictions=predictions),
             [pred.force for pred in predictions])
 
 
