@@ -151,6 +151,77 @@ def test_a_friction_level_linear_in_the_supply_is_described_by_the_pressure(logs
     assert first.form == "sign-dependent linear" and "log" in first.confounded_with
 
 
+def _travel_and_sign(log, seg):
+    """Per sample the travel since the last reversal (mm) and the friction's sign (the
+    last motion's direction, held through a stop)."""
+    from fitstiff.diagnosis._structure_forms import held_direction, structure_variables
+
+    v = structure_variables(log, seg, np.asarray(log.force))
+    return v["since_reversal"], held_direction(np.asarray(seg.direction, float))
+
+
+def test_a_presliding_stiffness_that_grows_with_the_rate_is_described_by_the_velocity(logs):
+    """A stiffer seal at a higher rate leaves, after each reversal, a bump in the travel
+    since it (where the presliding curve's slope matters) whose size follows the log of the
+    leg's speed: a transition scaled by the velocity, not a level per log or a position.
+    The logs' supply pressures are set so they do not rise with the speed (where they do,
+    the pressure is a rival the logs cannot tell from it)."""
+    logs_, segs = logs
+    segs = [dataclasses.replace(seg, pressure_level=p) for seg, p in zip(segs, (4.5e5, 6e5,
+                                                                               3e5))]
+    r = []
+    for log, seg, e in zip(logs_, segs, _noise(logs_, 11)):
+        s, sign = _travel_and_sign(log, seg)
+        speed = np.percentile(np.abs(seg.velocity), 90) * 1e3
+        r.append(e + 0.5 * np.log(speed / 5.0) * sign * (s / 0.3) * np.exp(1 - s / 0.3))
+    first = _first(_describe(logs_, segs, r))
+    assert first is not None and first.variable == "velocity", first
+    assert first.form.startswith("sign-dependent transition")
+    assert first.shrink > 0.5
+    assert "rate" in first.suggestion
+
+
+def test_a_friction_level_that_follows_the_supply_through_the_transition(logs):
+    """A friction level that follows the supply pressure shows as the seal slides: after
+    each reversal it grows from nothing to the level's change over the presliding travel.
+    Three logs at three pressures: the transition scaled by the pressure, and the log
+    (one pressure each) cannot be told from it."""
+    logs_, segs = logs
+    levels = [0.6 * (seg.pressure_level / 1e5 - 4.5) for seg in segs]
+    r = []
+    for log, seg, a, e in zip(logs_, segs, levels, _noise(logs_, 12)):
+        s, sign = _travel_and_sign(log, seg)
+        r.append(e + a * sign * -np.expm1(-s / 0.2))
+    first = _first(_describe(logs_, segs, r))
+    assert first is not None and {first.variable, *first.confounded_with} >= {"pressure",
+                                                                            "log"}, first
+
+
+def test_a_tight_spot_in_the_bore_is_described_by_the_position(logs):
+    """Friction that rises over a millimetre of the bore, on one log's travel: the
+    seal feels it once it slides, so after each reversal it grows in over the transition; a
+    friction level along the stroke, not a level of that log alone."""
+    logs_, segs = logs
+    r = []
+    for k, (log, seg, e) in enumerate(zip(logs_, segs, _noise(logs_, 13))):
+        s, sign = _travel_and_sign(log, seg)
+        x = 1e3 * np.asarray(log.displacement)
+        bump = np.exp(-0.5 * (x / 0.4) ** 2) if k == 1 else 0.0 * x
+        r.append(e + 1.2 * sign * -np.expm1(-s / 0.1) * bump)
+    first = _first(_describe(logs_, segs, r))
+    assert first is not None and first.variable == "position", first
+    assert first.form.startswith("sign-dependent friction level")
+    assert "tight spot" in first.suggestion
+
+
+def test_the_friction_keeps_its_sign_through_a_stop():
+    from fitstiff.diagnosis._structure_forms import held_direction
+
+    d = np.array([0, 0, 1, 1, 0, 0, -1, 0, 1], float)
+    assert held_direction(d).tolist() == [0, 0, 1, 1, 1, 1, -1, -1, 1]
+    assert held_direction(np.zeros(3)).tolist() == [0, 0, 0]
+
+
 def test_a_described_residual_is_described_once(logs):
     # after the accepted description, what is left is noise: nothing more is accepted
     logs_, segs = logs

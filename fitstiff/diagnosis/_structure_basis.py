@@ -1,6 +1,8 @@
 """Fitting one candidate description of the held-out residual
 (:mod:`fitstiff.diagnosis.structure`): its columns (:class:`Design`; hat functions at
-``KNOTS`` quantiles for a smooth one, a sine and a cosine per log for a periodic one), the
+``KNOTS`` quantiles for a smooth one, times ``1 - exp(-travel / s0)`` for a gated one, and
+beside them the same times the variable for a transition; a sine and a cosine per stretch
+of the stroke for a periodic one; a friction level per log beside a sign-dependent one), the
 penalised least squares with the penalty chosen by generalised cross-validation
 (:func:`ridge`), and the fit on training samples that predicts every sample
 (:func:`fit_predict`, the period scanned for a periodic one).
@@ -13,7 +15,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from fitstiff.diagnosis._structure_forms import Candidate, periods
+from fitstiff.diagnosis._structure_forms import Candidate, one_level_per_log, periods
 
 __all__ = ["KNOTS", "Design", "Fit", "fit_predict", "hats", "ridge"]
 
@@ -52,13 +54,19 @@ class Design:
             group_of_log[log_id] = cand.groups
             self._group_logs = (np.arange(n_groups)[:, None]
                                 == group_of_log[None, :]).astype(float)
+        # a sign-dependent description of a variable that varies within the logs carries a
+        # friction level per log (the ``log`` description's columns)
+        self._levels = (cand.signed and cand.form != "step" and self.n_logs > 1
+                        and not one_level_per_log(cand.values, log_id, weight > 0))
         # the logs lie one after another: per-log sums are sums over these runs of rows
         self._starts = np.flatnonzero(np.r_[True, np.diff(log_id) != 0])
         total = self._per_log(weight)
         self._total = np.where(total > 0, total, 1.0)
 
-    def columns(self, train: np.ndarray, period: float | None = None
+    def columns(self, train: np.ndarray, shape: float | None = None
                 ) -> tuple[np.ndarray, np.ndarray]:
+        """The columns and their penalty; ``shape``: a periodic description's period, a
+        gated one's travel ``s0`` (mm) over which it grows in after a reversal."""
         c = self.cand
         v = c.values
         if c.form in ("linear", "curved"):
@@ -75,7 +83,7 @@ class Design:
         elif c.form == "periodic":
             # one period, a phase and an amplitude per stretch of the stroke
             # (:func:`~fitstiff.diagnosis._structure_forms.stretches`)
-            phase = 2 * np.pi * v / period
+            phase = 2 * np.pi * v / shape
             base = np.concatenate([self.phase * np.sin(phase)[:, None],
                                    self.phase * np.cos(phase)[:, None]], axis=1)
             pen = np.zeros((base.shape[1], base.shape[1]))
@@ -84,9 +92,24 @@ class Design:
             if knots.size < 3:
                 knots = np.linspace(v[train].min(), v[train].max() + 1e-12, 3)
             base = hats(v, knots)
+            if c.form == "gated":        # a level that grows in as the seal slides
+                base = base * -np.expm1(-c.scale / shape)[:, None]
             d2 = np.diff(np.eye(knots.size), 2, axis=0)
             pen = d2.T @ d2
+            if c.form == "transition":
+                # the transition's shape, and a second one times the variable (centred)
+                z = (c.scale - np.mean(c.scale[train]))[:, None]
+                zero = np.zeros_like(pen)
+                base = np.concatenate([base, base * z], axis=1)
+                pen = np.block([[pen, zero], [zero, pen]])
         x = base * c.sign[:, None]
+        if self._levels:
+            # a friction level of each log's own beside the shape (unpenalised): what the
+            # physics fit of the other logs leaves in a log's level is no shape of the variable
+            lv = self.own * c.sign[:, None]
+            x = np.concatenate([x, lv], axis=1)
+            pen = np.block([[pen, np.zeros((pen.shape[0], lv.shape[1]))],
+                            [np.zeros((lv.shape[1], pen.shape[0] + lv.shape[1]))]])
         return self._centre(x), pen
 
     def _knots(self, v: np.ndarray, train: np.ndarray) -> np.ndarray:
@@ -158,6 +181,11 @@ def ridge(x: np.ndarray, r: np.ndarray, pen: np.ndarray, w: np.ndarray) -> np.nd
     return beta_best
 
 
+#: the travels (mm) over which a gated description may grow in after a reversal, chosen on
+#: the training samples (a seal's presliding range is 0.05-1 mm)
+_GATES = (0.03, 0.1, 0.3, 1.0)
+
+
 class Fit(NamedTuple):
     """A description fitted on training samples: its prediction of every sample, the period
     chosen (a periodic one; else None) and its number of columns (``dof``)."""
@@ -169,8 +197,17 @@ class Fit(NamedTuple):
 
 def fit_predict(design: Design, r: np.ndarray, train: np.ndarray, w: np.ndarray) -> Fit:
     """Fit on ``train`` (weights ``w``), predict every sample; the period chosen on
-    ``train`` for a periodic candidate."""
+    ``train`` for a periodic candidate, the travel it grows in over for a gated one."""
     wt = w * train
+    if design.cand.form == "gated":
+        best = None
+        for s0 in _GATES:
+            x, pen = design.columns(train, s0)
+            beta = ridge(x, r, pen, wt)
+            rss = float(np.sum(wt * (r - x @ beta) ** 2))
+            if best is None or rss < best[0]:
+                best = (rss, x @ beta, x.shape[1])
+        return Fit(best[1], None, best[2])
     if design.cand.form != "periodic":
         x, pen = design.columns(train)
         beta = ridge(x, r, pen, wt)

@@ -48,15 +48,42 @@ def structure_variables(log: Log, seg: Segmentation, model_force: np.ndarray
         if log.time is not None and n > 4:
             out["acceleration"] = 1e3 * _smooth(np.gradient(v, np.asarray(log.time)), 5)
     out["since_reversal"] = 1e3 * _since_reversal(np.asarray(log.displacement), seg.reversals)
+    if seg.velocity is not None:
+        out["_leg_speed"] = leg_speed(1e3 * np.asarray(seg.velocity), seg.reversals)
     out["direction"] = np.asarray(seg.direction, float)
     out["force"] = np.asarray(model_force, float)
-    out["_motion"] = np.asarray(seg.direction, float)
+    out["_motion"] = held_direction(np.asarray(seg.direction, float))
     # the model force has no noise: the sign of its change marks its reversals
     f = np.asarray(model_force, float)
     change = np.sign(np.gradient(f))
     out["_force"] = change
     turn = np.flatnonzero((change[1:] != change[:-1]) & (change[1:] != 0)) + 1
     out["_force_since_reversal"] = _since_reversal(f, turn)
+    return out
+
+
+def held_direction(direction: np.ndarray) -> np.ndarray:
+    """The direction of the last motion, held while the piston stands (0 before it first
+    moves): the sign of the friction, which keeps its last sliding sign through a pause or
+    a hold, where a change of its level shows as much as in the motion before it."""
+    moving = direction != 0
+    if not moving.any():
+        return direction
+    last = np.maximum.accumulate(np.where(moving, np.arange(direction.size), -1))
+    return np.where(last >= 0, direction[np.maximum(last, 0)], 0.0)
+
+
+def leg_speed(v: np.ndarray, reversals: np.ndarray) -> np.ndarray:
+    """Per sample, the speed of its leg (the motion between two reversals): the median speed
+    of the leg's moving samples (where ``|v|`` exceeds a tenth of the leg's largest), the
+    rate the seal's transition after the reversal runs at."""
+    cuts = np.unique(np.concatenate([[0], np.asarray(reversals, dtype=np.int64), [v.size]]))
+    out = np.zeros(v.size)
+    for a, b in zip(cuts[:-1], cuts[1:]):
+        speed = np.abs(v[a:b])
+        if speed.size == 0 or speed.max() <= 0:
+            continue
+        out[a:b] = float(np.median(speed[speed > 0.1 * speed.max()]))
     return out
 
 
@@ -82,16 +109,24 @@ class Candidate:
     direction of motion, or of the force's change for its hysteresis)."""
 
     variable: str
-    form: str              # linear / smooth / periodic / step
+    form: str              # linear / curved / smooth / gated / periodic / step / transition
     signed: bool
     values: np.ndarray     # the variable, all samples (concatenated logs)
     sign: np.ndarray       # the sign multiplying the columns (ones when even)
     #: per sample, the group of logs that share a periodic description's phase and
     #: amplitude (:func:`stretches`); None for the other forms
     groups: np.ndarray | None = None
+    #: per sample, what a ``transition`` description's shape is scaled by (the time, the
+    #: supply pressure, or the log of the leg's speed), or a ``gated`` one's travel since
+    #: the last reversal (mm); None for the other forms
+    scale: np.ndarray | None = None
 
     @property
     def label(self) -> str:
+        if self.form == "transition":
+            return "sign-dependent transition after each reversal, scaled by it"
+        if self.form == "gated":
+            return "sign-dependent friction level, smooth (growing in after each reversal)"
         if self.form == "hysteresis":
             return "hysteresis (smooth in the force's change since it last turned)"
         return ("sign-dependent " if self.signed else "") + self.form
@@ -113,7 +148,15 @@ def candidates(per_log: Sequence[Mapping[str, np.ndarray]], log_id: np.ndarray
 
     motion, force_sign = cat("_motion"), cat("_force")
     ones = np.ones_like(motion)
+    travel = cat("since_reversal")
+    scales = {"time": cat("time"), "pressure": cat("pressure"), "velocity": (
+        None if cat("_leg_speed") is None else np.log(np.maximum(cat("_leg_speed"), 1e-9)))}
     for name in VARIABLES:
+        z = scales.get(name)
+        if travel is not None and z is not None and np.all(np.isfinite(z)) and np.ptp(z) > 0:
+            # a friction (level or stiffness) that follows the variable: the transition
+            # after a reversal, smooth in the travel since it, scaled linearly in the variable
+            out.append(Candidate(name, "transition", True, travel, motion, scale=z))
         if name == "log":
             if n_logs >= 2:
                 out.append(Candidate("log", "step", True, log_id.astype(float), motion))
@@ -153,6 +196,10 @@ def candidates(per_log: Sequence[Mapping[str, np.ndarray]], log_id: np.ndarray
             out.append(Candidate(name, "linear", True, v, sign))
         for signed in (False, True):
             out.append(Candidate(name, "smooth", signed, v, sign if signed else ones))
+        if name == "position" and travel is not None:
+            # a friction level along the bore (a tight spot): it acts once the seal slides,
+            # so the curve grows in over the transition after each reversal
+            out.append(Candidate(name, "gated", True, v, sign, scale=travel))
         if name == "position" and periods(v, log_id).size:
             absolute = cat("_absolute")
             groups = stretches(v, log_id, absolute is not None and bool(np.all(absolute)))

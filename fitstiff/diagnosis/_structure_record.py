@@ -232,10 +232,13 @@ def shown(cand: Candidate, log_id: np.ndarray, counted: np.ndarray, full: np.nda
     unit = f" ({UNITS[cand.variable]})" if UNITS[cand.variable] else ""
     if cand.form == "hysteresis":
         return Shown(cand.values, f"the force's change since it last turned{unit}")
+    if cand.form == "transition":
+        return Shown(cand.values, f"travel since the last reversal (mm), the shape scaled "
+                                  f"by the {name}")
     if period is not None:
         return Shown(_folded(cand, log_id, full, period),
                      f"{name} within the period, each log's phase aligned{unit}")
-    if cand.form in ("linear", "smooth") and disjoint(cand.values, log_id, counted):
+    if cand.form in ("linear", "smooth", "gated") and disjoint(cand.values, log_id, counted):
         out = cand.values.copy()
         for k in np.unique(log_id):
             m = log_id == k

@@ -13,8 +13,19 @@ scanned, their phase and amplitude shared by the logs that travel one stretch of
 position only), ``step`` (one level per log, or per direction) and, for the force,
 ``hysteresis`` (smooth in the force's change since it last turned, times the direction of its
 change), each either **even** (the same in both directions of motion) or **sign-dependent**
-(times the direction of motion: a friction-like force). Every column is centred per log, so
-no description can take over a log's force offset (a nuisance the fit already owns).
+(times the direction of the last motion, held through a stop: a friction-like force, which
+keeps its sign while the piston stands). Two forms follow how a friction change shows in a
+seal's force: a change of its level or its presliding stiffness is felt through the
+transition after each reversal, so ``transition`` is a smooth curve of the travel since the
+reversal plus a second one times the time, the supply pressure or the log of the leg's
+speed (a friction warming up, a pressure law beyond the library's, a rate-dependent
+presliding stiffness), and ``gated`` is a smooth curve of the position times
+``1 - exp(-travel / s0)``, ``s0`` chosen on the training folds (a friction level along the
+bore: a tight spot). A sign-dependent description of a variable that varies within the logs
+carries a friction level of each log's own beside its shape: what the physics fit of the
+other logs leaves in a log's friction level is no shape of the variable. Every column is
+centred per log, so no description can take over a log's force offset (a nuisance the fit
+already owns).
 
 **Held out twice.** The residual is already held out from the physics; a description is held
 out from itself too: each log's samples are cut into ``BLOCKS`` consecutive blocks, block
@@ -33,8 +44,9 @@ prediction is taken off the residual and the rest is described again, up to
 or passing with at least ``RIVAL_GAIN`` of the winner's held-out gain) and predict the same
 thing (correlation above ``CONFOUNDED``) are its ``confounded_with``: the logs cannot tell
 those variables apart; so are ``log``, and any variable with one level per log (a supply
-pressure each), for a curve of a variable whose ranges in the logs do not overlap, and for
-a period whose phase is every log's own (either is as well a shape per log).
+pressure each), for a curve of a variable whose ranges in the logs do not overlap, for
+a period whose phase is every log's own, and for a transition scaled by a variable with one
+level per log (each is as well a shape per log).
 
 The rates are measured in the withheld-effect benchmark (``benchmarks/withheld.py``: nulls,
 datasets whose in-library effect was accepted, and the out-of-library family).
@@ -260,9 +272,11 @@ def _round(data: _Samples, designs: Sequence[Design], r: np.ndarray, before: flo
                         and x.before - x.after >= RIVAL_GAIN * gain)
                    and _corr(x.pred, chosen.pred, data.weight) > CONFOUNDED)
     apart: tuple[str, ...] = ()
-    if (chosen.cand.form in ("linear", "smooth", "curved")
+    if (chosen.cand.form in ("linear", "smooth", "curved", "gated")
             and disjoint(chosen.cand.values, data.log_id, data.counted)
-            or phase_per_log(chosen.cand, data.log_id, data.counted)):
+            or phase_per_log(chosen.cand, data.log_id, data.counted)
+            or chosen.cand.form == "transition"
+            and one_level_per_log(chosen.cand.scale, data.log_id, data.counted)):
         # a curve per log (or a phase per log) is as well a shape of each log's own, and of
         # any variable that has one level per log (a supply pressure each)
         apart = ("log", *dict.fromkeys(
