@@ -195,7 +195,7 @@ def test_diagnosis_of_the_four_logs_accepts_pressure_friction_only(candidates):
     # alike on these logs (the force was described first before the friction-like forms)
     found = [u for u in result.unexplained_structure if u.accepted]
     assert [(u.variable, u.form, u.confounded_with) for u in found] == [
-        ("position", "sign-dependent friction level, smooth (growing in after each reversal)",
+        ("position", "sign-dependent friction level (grows in after each reversal)",
          ("time", "velocity", "force"))]
     assert 0.3 < found[0].shrink < 0.5 and 0.5 < found[0].size_N < 1.0
     assert any("follows position" in line for line in result.verdict)

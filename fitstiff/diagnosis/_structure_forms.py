@@ -126,7 +126,7 @@ class Candidate:
         if self.form == "transition":
             return "sign-dependent transition after each reversal, scaled by it"
         if self.form == "gated":
-            return "sign-dependent friction level, smooth (growing in after each reversal)"
+            return "sign-dependent friction level (grows in after each reversal)"
         if self.form == "hysteresis":
             return "hysteresis (smooth in the force's change since it last turned)"
         return ("sign-dependent " if self.signed else "") + self.form

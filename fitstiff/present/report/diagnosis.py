@@ -3,6 +3,8 @@ region, each log's loop with the accepted effects, the candidate table and the v
 
 from __future__ import annotations
 
+import textwrap
+
 
 import numpy as np
 from matplotlib.figure import Figure
@@ -186,8 +188,8 @@ def _structure_section(result, logs, segs, after, masks) -> Section:
             plotting.plot_structure(ax, d.values[keep], d.residual[keep], d.prediction[keep],
                                     sign=None if even else d.sign[keep], shape=u.shape,
                                     xlabel=u.axis or u.variable)
-            ax.set_title(f"{u.variable.replace('_', ' ')}: {u.form}, {u.size_N:.2g} N",
-                         fontsize=9)
+            ax.set_title(textwrap.fill(f"{u.variable.replace('_', ' ')}: {u.form}, "
+                                       f"{u.size_N:.2g} N", 60), fontsize=9)
         figures = (ReportFigure(
             "unexplained_structure", "What the unexplained held-out residual follows: red, "
             "the residual left by the final model; blue, after taking off the description's "
