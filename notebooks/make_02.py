@@ -370,9 +370,9 @@ reports what stays above the noise floor as **unexplained**, above all in the pr
 cells (the list above names the cells that the accepted effect made worse on held-out data):
 the O-ring's transition after a reversal has a shape that neither the Dahl curve nor an
 effect of the library reproduces. It then describes what that rest follows
-(`unexplained_structure`, the last lines of the summary): about 0.85 N of the 1.1 N follows
-the position along the stroke, as a friction level that grows in over the transition after
-each reversal (a printed bore's layers would do that), and it says the time, the rate and the
+(`unexplained_structure`, the last lines of the summary): about 0.8 N of the 1.1 N follows
+the velocity, as a transition after each reversal that scales with the leg's speed (an
+elastomer's rate-dependent presliding stiffness would do that), and it says the time and the
 force predict it alike on these logs: the next logs should vary them apart. The diagnosis's `beta` agrees with the fit of
 `chamber+dahl+pressure_friction` above. For these logs that means: quote the sliding level
 and its pressure dependence; treat the pre-sliding slope as a rough figure (its model does not

@@ -2,7 +2,8 @@
 (:mod:`fitstiff.diagnosis.structure`): its columns (:class:`Design`; hat functions at
 ``KNOTS`` quantiles for a smooth one, times ``1 - exp(-travel / s0)`` for a gated one, and
 beside them the same times the variable for a transition; a sine and a cosine per stretch
-of the stroke for a periodic one; a friction level per log beside a sign-dependent one), the
+of the stroke for a periodic one; a friction level per log beside a transition in the time or
+the speed), the
 penalised least squares with the penalty chosen by generalised cross-validation
 (:func:`ridge`), and the fit on training samples that predicts every sample
 (:func:`fit_predict`, the period scanned for a periodic one).
@@ -17,7 +18,7 @@ import numpy as np
 
 from fitstiff.diagnosis._structure_forms import Candidate, one_level_per_log, periods
 
-__all__ = ["KNOTS", "Design", "Fit", "fit_predict", "hats", "ridge"]
+__all__ = ["KNOTS", "Design", "Fit", "fit_predict", "gate", "hats", "ridge"]
 
 KNOTS = 8
 #: penalty weights tried by generalised cross-validation, in units of the columns' scale
@@ -54,10 +55,11 @@ class Design:
             group_of_log[log_id] = cand.groups
             self._group_logs = (np.arange(n_groups)[:, None]
                                 == group_of_log[None, :]).astype(float)
-        # a sign-dependent description of a variable that varies within the logs carries a
-        # friction level per log (the ``log`` description's columns)
-        self._levels = (cand.signed and cand.form != "step" and self.n_logs > 1
-                        and not one_level_per_log(cand.values, log_id, weight > 0))
+        # a transition scaled by a variable that varies within the logs (the time, the
+        # speed) carries a friction level per log (the ``log`` description's columns): what
+        # the physics fit of the other logs leaves in a log's level is no shape of it
+        self._levels = (cand.form == "transition" and self.n_logs > 1
+                        and not one_level_per_log(cand.scale, log_id, weight > 0))
         # the logs lie one after another: per-log sums are sums over these runs of rows
         self._starts = np.flatnonzero(np.r_[True, np.diff(log_id) != 0])
         total = self._per_log(weight)
@@ -104,8 +106,7 @@ class Design:
                 pen = np.block([[pen, zero], [zero, pen]])
         x = base * c.sign[:, None]
         if self._levels:
-            # a friction level of each log's own beside the shape (unpenalised): what the
-            # physics fit of the other logs leaves in a log's level is no shape of the variable
+            # a friction level of each log's own beside the shape (unpenalised)
             lv = self.own * c.sign[:, None]
             x = np.concatenate([x, lv], axis=1)
             pen = np.block([[pen, np.zeros((pen.shape[0], lv.shape[1]))],
@@ -186,6 +187,19 @@ def ridge(x: np.ndarray, r: np.ndarray, pen: np.ndarray, w: np.ndarray) -> np.nd
 _GATES = (0.03, 0.1, 0.3, 1.0)
 
 
+def gate(design: Design, r: np.ndarray, train: np.ndarray, w: np.ndarray) -> float:
+    """A gated description's travel ``s0`` (mm): of :data:`_GATES`, the one whose fit to
+    the ``train`` samples leaves the least residual."""
+    wt = w * train
+    best, chosen = math.inf, _GATES[0]
+    for s0 in _GATES:
+        x, pen = design.columns(train, s0)
+        rss = float(np.sum(wt * (r - x @ ridge(x, r, pen, wt)) ** 2))
+        if rss < best:
+            best, chosen = rss, s0
+    return chosen
+
+
 class Fit(NamedTuple):
     """A description fitted on training samples: its prediction of every sample, the period
     chosen (a periodic one; else None) and its number of columns (``dof``)."""
@@ -200,14 +214,8 @@ def fit_predict(design: Design, r: np.ndarray, train: np.ndarray, w: np.ndarray)
     ``train`` for a periodic candidate, the travel it grows in over for a gated one."""
     wt = w * train
     if design.cand.form == "gated":
-        best = None
-        for s0 in _GATES:
-            x, pen = design.columns(train, s0)
-            beta = ridge(x, r, pen, wt)
-            rss = float(np.sum(wt * (r - x @ beta) ** 2))
-            if best is None or rss < best[0]:
-                best = (rss, x @ beta, x.shape[1])
-        return Fit(best[1], None, best[2])
+        x, pen = design.columns(train, gate(design, r, train, w))
+        return Fit(x @ ridge(x, r, pen, wt), None, x.shape[1])
     if design.cand.form != "periodic":
         x, pen = design.columns(train)
         beta = ridge(x, r, pen, wt)

@@ -32,7 +32,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from fitstiff.diagnosis._structure_basis import Design, fit_predict, ridge
+from fitstiff.diagnosis._structure_basis import Design, fit_predict, gate, ridge
 from fitstiff.diagnosis._structure_forms import (Candidate, candidates, one_level_per_log,
                                                  structure_variables)
 from fitstiff.diagnosis.structure import Structure
@@ -145,7 +145,9 @@ class DescribedPair:
         _, log_id, counted, train, r, _ = stack
         best, out = math.inf, None
         for cand in cands:
-            if cand.variable != variable:
+            # a rival is one of the plain forms: a transition after each reversal is not
+            # yet weighed on a program (its support is the travel, not the variable)
+            if cand.variable != variable or cand.form == "transition":
                 continue
             fit = fit_predict(Design(cand, log_id, counted), r, train, counted)
             rss = float(np.sum(counted * train * (r - fit.pred) ** 2))
@@ -269,8 +271,10 @@ def _fitted(d: Described, cands: Sequence[Candidate], log_id: np.ndarray, counte
                          "the program lacks what the variable needs (a time base, "
                          "a supply pressure)")
     design = Design(cand, log_id, counted)
-    period = d.period
-    if cand.form == "periodic" and period is None:
-        period = fit_predict(design, r, train, counted).period
-    x, pen = design.columns(train, period)
+    shape = d.period
+    if cand.form == "periodic" and shape is None:
+        shape = fit_predict(design, r, train, counted).period
+    if cand.form == "gated":
+        shape = gate(design, r, train, counted)
+    x, pen = design.columns(train, shape)
     return cand, x, ridge(x, r, pen, counted * train)
