@@ -233,8 +233,7 @@ def shown(cand: Candidate, log_id: np.ndarray, counted: np.ndarray, full: np.nda
     if cand.form == "hysteresis":
         return Shown(cand.values, f"the force's change since it last turned{unit}")
     if cand.form == "transition":
-        return Shown(cand.values, f"travel since the last reversal (mm), the shape scaled "
-                                  f"by the {name}")
+        return Shown(cand.values, f"travel since the reversal (mm), scaled by the {name}")
     if period is not None:
         return Shown(_folded(cand, log_id, full, period),
                      f"{name} within the period, each log's phase aligned{unit}")
