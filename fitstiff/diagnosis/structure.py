@@ -21,9 +21,9 @@ reversal plus a second one times the time, the supply pressure or the log of the
 speed (a friction warming up, a pressure law beyond the library's, a rate-dependent
 presliding stiffness), and ``gated`` is a smooth curve of the position times
 ``1 - exp(-travel / s0)``, ``s0`` chosen on the training folds (a friction level along the
-bore: a tight spot). A sign-dependent description of a variable that varies within the logs
-carries a friction level of each log's own beside its shape: what the physics fit of the
-other logs leaves in a log's friction level is no shape of the variable. Every column is
+bore: a tight spot). A transition in the time or the speed carries a friction level of each
+log's own beside its shape: what the physics fit of the other logs leaves in a log's
+friction level is no shape of the variable. Every column is
 centred per log, so no description can take over a log's force offset (a nuisance the fit
 already owns).
 
