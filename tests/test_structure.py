@@ -55,6 +55,32 @@ def test_noise_alone_is_never_described(logs, seed):
     assert _first(found) is None, [s.description for s in found if s.accepted]
 
 
+def test_the_needed_t_counts_correlated_descriptions_once():
+    """The family-wise threshold (max-T over sign flips of the blocks): copies of one
+    description need the t of one test; unrelated ones about Bonferroni's; and over
+    symmetric null gains the largest t of ten correlated descriptions passes it in about
+    alpha of the draws."""
+    from scipy import stats
+
+    from fitstiff.diagnosis.structure import max_t_threshold
+
+    rng = np.random.default_rng(3)
+    n = 48
+    one = rng.standard_normal(n)
+    single = stats.t.ppf(0.95, n - 1)
+    assert max_t_threshold(np.tile(one, (10, 1)), 0.05) == pytest.approx(single, abs=0.15)
+    bonferroni = stats.t.ppf(1 - 0.05 / 10, n - 1)
+    apart = max_t_threshold(rng.standard_normal((10, n)), 0.05)
+    assert single + 0.5 < apart < bonferroni + 0.15
+    passed = 0
+    for _ in range(300):
+        common = rng.standard_normal(n)
+        gains = 0.8 * common + 0.6 * rng.standard_normal((10, n))
+        t = gains.mean(axis=1) / (gains.std(axis=1, ddof=1) / math.sqrt(n))
+        passed += bool(t.max() > max_t_threshold(gains, 0.05))
+    assert passed / 300 < 0.09
+
+
 def test_a_ripple_along_the_stroke_is_described_by_position_with_its_period(logs):
     logs_, segs = logs
     period = 0.7e-3       # two periods and more within each log's 2 mm

@@ -169,6 +169,7 @@ class Trial:
     after: float
     shown: np.ndarray      # the variable as plotted (see :func:`shown`)
     axis: str              # what `shown` is, with its unit
+    gains: np.ndarray      # the held-out gain per block (N^2), whose t statistic is ``t``
 
 
 def record(x: Trial, relative: bool, noise: float, *, accepted: bool, round_: int,

@@ -35,7 +35,9 @@ knots, penalty and period included) and predicts the fold. No physics model is r
 **The rule** (the library's, :mod:`fitstiff.diagnosis.select`, on the description): the
 gap must exist (held-out RMS above the pooled noise floor); the description's held-out
 gain ``sum(r^2) - sum((r - d)^2)`` per block is positive by a one-sided t-test over the blocks
-at ``alpha`` Bonferroni-corrected over the descriptions tried; the held-out RMS falls by at
+at ``alpha`` family-wise over the descriptions tried (:func:`max_t_threshold`: the blocks'
+signs flipped together, so correlated descriptions are not counted as independent tries);
+the held-out RMS falls by at
 least ``MIN_GAIN`` of the noise floor; and the fall is at least ``min_shrink`` of the gap
 above the noise. Among the descriptions that pass, the lowest held-out RMS wins (within
 ``TIE`` of the noise floor: fewer parameters, then the vocabulary's order); its held-out
@@ -242,10 +244,8 @@ def _round(data: _Samples, designs: Sequence[Design], r: np.ndarray, before: flo
     """Try every description on the residual ``r`` (held-out RMS ``before``) and accept the
     best that passes the rule (the module docstring), with the variables it is confounded
     with."""
-    from scipy import stats
-
-    t_needed = float(stats.t.ppf(1 - rule.alpha / len(designs), data.n_blocks - 1))
     tried = [_trial(design, r, before, data) for design in designs]
+    t_needed = max_t_threshold(np.array([x.gains for x in tried]), rule.alpha)
     shrinks = {id(x): (x.before - x.after) / (x.before - rule.noise) for x in tried}
     passing = [x for x in tried
                if x.t > t_needed and x.before - x.after >= MIN_GAIN * rule.noise
@@ -304,7 +304,33 @@ def _trial(design: Design, r: np.ndarray, before: float, data: _Samples) -> Tria
     full = fit_predict(design, r, data.fold >= 0, data.weight)
     plot = shown(design.cand, data.log_id, counted, full.pred, full.period)
     return Trial(design.cand, pred, full.pred, full.period, full.dof, t, before, after,
-                 plot.values, plot.axis)
+                 plot.values, plot.axis, gains)
+
+
+#: sign flips drawn for :func:`max_t_threshold` (its seed fixed: the same data, the same
+#: threshold)
+FLIPS = 2000
+
+
+def max_t_threshold(gains: np.ndarray, alpha: float) -> float:
+    """The t a description's held-out gain must exceed, family-wise at ``alpha`` over the
+    descriptions tried (``gains``: one row of block gains per description): the
+    ``1 - alpha`` quantile of the largest t over the descriptions when every block's gains
+    change sign together (Westfall and Young's max-T). Under no structure a held-out
+    block gain is a term symmetric about 0 less the square of an independent prediction,
+    so flipping signs is conservative; flipping all descriptions' gains of a block alike
+    keeps their correlation (transitions of the time, the pressure and the speed predict
+    much the same), which a Bonferroni bound over the descriptions ignores."""
+    g = np.asarray(gains, float)
+    n = g.shape[1]
+    rng = np.random.default_rng(0)
+    flips = rng.choice((-1.0, 1.0), size=(FLIPS, n))
+    means = flips @ g.T / n                                   # (flips, descriptions)
+    ss = np.sum(g * g, axis=1)
+    var = np.maximum((ss[None, :] - n * means**2) / (n - 1), 1e-300)
+    t = means / np.sqrt(var / n)
+    t = np.where(ss[None, :] > 0, t, 0.0)
+    return float(np.quantile(t.max(axis=1), 1 - alpha))
 
 
 def _blocks(log_id: np.ndarray, weight: np.ndarray) -> np.ndarray:
