@@ -116,9 +116,8 @@ def pair(sp: SuperProblem, folds, tried: Mapping[str, Tried], starts: FoldStarts
     top = partners(tried, current)
     best: _PairFit | None = None
     pairs = list(itertools.combinations(top, 2))
-    jobs = [Job(starts.of(b.effect, on=a.starts), active,
-                np.concatenate([sp.elements(a.effect, fitted=True),
-                                sp.elements(b.effect, fitted=True)])) for a, b in pairs]
+    jobs = [Job(starts.of(b.effect, on=a.starts), active, sp.own(a.effect, b.effect))
+            for a, b in pairs]
     # the pairs' folds share the fold threads (held_out_batch)
     for (a, b), job, ho in zip(pairs, jobs, held_out_batch(sp, folds, jobs)):
         fold_start = job.starts
@@ -155,14 +154,17 @@ def full_fit(sp: SuperProblem, s: Score, start: Start, active, weights) -> FullF
     each of its ``also``, the converged solve of lowest cost kept), with its BIC:
     ``N log RSS + k log N`` over the ``N`` weighted residual entries, ``k`` the candidate's
     fitted parameters (the model's other parameters are common to every candidate); infinite
-    when the solve did not converge."""
-    theta, ok, _, cost, hold = sp.solve_best((start, *start.also),
-                                             sp.model_mask(list(active) + [s.effect]),
+    when the solve did not converge. ``hold`` comes back with the candidate's own entries
+    (its fixed shape too, :meth:`~fitstiff.diagnosis.supermodel.SuperProblem.own`) where
+    the fit put them: they stay there once it is accepted."""
+    free = sp.model_mask(list(active) + [s.effect])
+    free[sp.own(s.effect)] = True
+    theta, ok, _, cost, hold = sp.solve_best((start, *start.also), free,
                                              sp.nuisance_mask(), weights)
     n = float(np.count_nonzero(np.asarray(weights) > 0))
-    k = sp.elements(s.effect, fitted=True).size
+    k = sp.own(s.effect).size
     bic = n * math.log(2.0 * cost) + k * math.log(n) if ok and cost > 0 else math.inf
-    return FullFit(theta, ok, bic, hold)
+    return FullFit(theta, ok, bic, np.asarray(sp.physical(theta, hold, free)))
 
 
 def tie_order(sp: SuperProblem, scores, accepted, theta, hold, active, weights, *,

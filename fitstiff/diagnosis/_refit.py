@@ -200,7 +200,7 @@ def refit_start(sp: SuperProblem, s: Score, theta, hold, active, weights) -> Sta
     of the others, the refit solves from both (``also``) and keeps the lower training cost."""
     par = sp.problem.par
     free = sp.model_mask(active)
-    entries = sp.elements(s.effect, fitted=True)
+    entries = sp.own(s.effect)
     x = np.array(sp.physical(theta, hold, free))
     for name, value in s.one_step.items():
         x[par.names.index(name)] = value

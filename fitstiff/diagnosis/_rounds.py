@@ -141,7 +141,7 @@ def _refits(st: Setting, s: Search, starts: FoldStarts) -> dict[str, Tried]:
             fold_start = [starts.of(x.effect, batch=names) for x in batch]
             # the batch's folds share the fold threads (held_out_batch)
             heldout = held_out_batch(st.sp, st.folds, [
-                Job(f, s.active, st.sp.elements(x.effect, fitted=True))
+                Job(f, s.active, st.sp.own(x.effect))
                 for x, f in zip(batch, fold_start)])
         for score, ho, f in zip(batch, heldout, fold_start):
             tried[score.effect] = judge(st.sp, score, ho, f, current=s.current,
@@ -184,10 +184,12 @@ def _accept_pair(st: Setting, s: Search, tried: dict[str, Tried],
                      current=s.current, noise=st.noise_pooled, min_shrink=st.min_shrink)
     if found is None:
         return None
-    s.hold = found.hold
-    s.theta, _, _, _ = st.sp.solve(found.theta, found.hold,
-                                   st.sp.model_mask(s.active + found.effects),
-                                   st.sp.nuisance_mask(), st.weights)
+    free = st.sp.model_mask(s.active + found.effects)
+    free[st.sp.own(*found.effects)] = True
+    s.theta, _, _, _ = st.sp.solve(found.theta, found.hold, free, st.sp.nuisance_mask(),
+                                   st.weights)
+    # the pair's own shape entries stay where this fit put them
+    s.hold = np.asarray(st.sp.physical(s.theta, found.hold, free))
     improved = improved_regions(st.sp, st.noise, st.masks, s.current, found.heldout)
     for effect in found.effects:
         s.decided[effect] = dataclasses.replace(
