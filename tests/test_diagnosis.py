@@ -636,8 +636,10 @@ def test_a_maxwell_slip_law_takes_the_friction_over_from_the_dahl_base():
     """A seal whose whole friction is three unequal Maxwell-slip elements (withheld
     ``law/maxwell_slip/2``, short logs): from its one-step values beside the Dahl base the
     candidate's refit removed 8 % of the gap and nothing was accepted; started where it has
-    taken the base's friction over (``_refit._handover``) it removes most of it. Once
-    accepted, its slip displacements stay those it was fitted with."""
+    taken the base's friction over (``_refit._handover``) it removes most of it. Its slip
+    displacements are fitted in its own refit (held on their grid they left 0.54 N held
+    out against a 0.28 N floor on the full logs), so the law it names is the seal's: its
+    three elements come back, and nothing is left above the noise."""
     from fitstiff._testing.withheld import make_dataset
     from fitstiff.diagnosis import diagnose
 
@@ -646,9 +648,15 @@ def test_a_maxwell_slip_law_takes_the_friction_over_from_the_dahl_base():
                  candidates="maxwell_slip,viscous,rig_compliance")
     assert d.accepted == ("maxwell_slip",), d.verdict
     assert d.candidate("maxwell_slip").shrink > 0.8
-    later = [c for c in d.candidates if c.round == 2 and c.heldout_rms_after_N is not None]
-    assert later and all(c.heldout_rms_after_N < 2 * d.gap["final_heldout_rms_N"]
-                         for c in later)           # the next round's refits keep the grid
+    assert d.gap["final_heldout_rms_N"] <= d.gap["noise_N"]
+    fitted = d.candidate("maxwell_slip").parameters
+    elements = sorted((fitted[f"k_{i}"]["value"], fitted[f"delta_{i}"]["value"])
+                      for i in range(1, 5))[1:]            # the stiffest three (N/mm, mm)
+    law = truth["effects"]["maxwell_slip"]
+    true = sorted((k / 1e3, delta * 1e3) for k, delta in zip(law["k"], law["delta"]))
+    for (k, delta), (k_true, delta_true) in zip(elements, true):
+        assert k == pytest.approx(k_true, rel=0.1) and delta == pytest.approx(delta_true,
+                                                                              rel=0.1)
 
 
 def test_an_accepted_maxwell_slip_keeps_its_slip_displacements():
