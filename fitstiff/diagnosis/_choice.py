@@ -116,8 +116,9 @@ def pair(sp: SuperProblem, folds, tried: Mapping[str, Tried], starts: FoldStarts
     top = partners(tried, current)
     best: _PairFit | None = None
     pairs = list(itertools.combinations(top, 2))
-    jobs = [Job(starts.of(b.effect, on=a.starts), active, sp.own(a.effect, b.effect))
-            for a, b in pairs]
+    jobs = [Job(starts.of(b.effect, on=a.starts), active,
+                np.concatenate([sp.elements(a.effect, fitted=True),
+                                sp.elements(b.effect, fitted=True)])) for a, b in pairs]
     # the pairs' folds share the fold threads (held_out_batch)
     for (a, b), job, ho in zip(pairs, jobs, held_out_batch(sp, folds, jobs)):
         fold_start = job.starts

@@ -51,14 +51,14 @@ _TOKENS = {"maxwell_slip": "maxwell_slip:4", "chamber": "chamber:gated",
 _NEEDS_FRICTION = ("stribeck", "asymmetry", "pressure_friction", "dwell_stiction",
                    "maxwell_slip")
 _NEEDS_CHAMBER = ("heat_transfer", "leakage")
-#: candidates whose shape parameters are held in every solve but their own refit
-#: (:meth:`SuperProblem.own`): Maxwell-slip's slip displacements start on a log-spaced grid
-#: (scaled by the baseline's Fc / sigma0) and are fitted with the element stiffnesses only
-#: when the candidate is refitted, held or accepted (its full-data fit, its pair); once
-#: accepted they stay where each fit put them. Held on the grid, the law's sets ended
-#: 0.52-0.78 N in-sample against a 0.19-0.27 N floor (docs/benchmarks.md); free in every
-#: later round too, the joint solves of the next candidate with them wandered (a pair's
-#: heat exchange ended above its start)
+#: candidates whose shape parameters are held on a grid but where the candidate itself is
+#: fitted once it explains the gap (:meth:`SuperProblem.own`): Maxwell-slip's slip
+#: displacements start on a log-spaced grid (scaled by the baseline's Fc / sigma0); a refit
+#: that passes on the grid is refitted with them free (``_rounds._refine_shapes``), and the
+#: full-data fit of an accepted candidate (or pair) frees them; once accepted they stay where
+#: each fit put them. Held on the grid, the law's sets ended 0.52-0.78 N in-sample against a
+#: 0.19-0.27 N floor (docs/benchmarks.md); free in every later round too, the joint solves
+#: of the next candidate with them wandered (a pair's heat exchange ended above its start)
 FIXED_SHAPE = ("maxwell_slip",)
 #: tolerance of the diagnosis' solves (steps relative to the entries, cost changes relative to
 #: the cost); the decisions compare held-out RMS values at a resolution of 5 % of the noise
