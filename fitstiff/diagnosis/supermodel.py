@@ -201,7 +201,11 @@ class SuperProblem:
         self.units = par.units()
         self.series = self.problem.residual_series()
         self.n_residuals = max(s.span.stop for s in self.series)
-        largest = max((self.own(c).size for c in self.candidates), default=0)
+        # sized for the refits on the grid: every solve carries as many tangents as its
+        # padded length (4 more for Maxwell-slip's slip displacements cost 7 s cold at
+        # real size); a refit that frees them too compiles its own length when it comes
+        largest = max((self.elements(c, fitted=True).size for c in self.candidates),
+                      default=0)
         self._full = _Solver(self.problem, int(self.model_mask(self.baseline_terms).sum())
                              + largest)
         self._jac = self.problem.compiled(_jacobian, n_model=self.n_model)
@@ -449,7 +453,7 @@ class _Light:
             np.asarray(sp.problem.par.physical(probe))[self.model], rtol=1e-12, atol=0.0)
         #: False when the light problem does not map onto the super-model (then unused)
         self.maps = same_layout and same_transforms
-        largest = max((sp.own(c).size for c in keep), default=0)
+        largest = max((sp.elements(c, fitted=True).size for c in keep), default=0)
         self.solver = _Solver(problem, int(sp.model_mask(sp.baseline_terms).sum()) + largest)
 
     def _theta(self, theta) -> np.ndarray:
