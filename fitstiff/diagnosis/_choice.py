@@ -158,8 +158,7 @@ def full_fit(sp: SuperProblem, s: Score, start: Start, active, weights) -> FullF
     when the solve did not converge. ``hold`` comes back with the candidate's own entries
     (its fixed shape too, :meth:`~fitstiff.diagnosis.supermodel.SuperProblem.own`) where
     the fit put them: they stay there once it is accepted."""
-    free = sp.model_mask(list(active) + [s.effect])
-    free[sp.own(s.effect)] = True
+    free = sp.fitting(active, [s.effect])
     theta, ok, _, cost, hold = sp.solve_best((start, *start.also), free,
                                              sp.nuisance_mask(), weights)
     n = float(np.count_nonzero(np.asarray(weights) > 0))

@@ -208,8 +208,7 @@ def _accept_pair(st: Setting, s: Search, tried: dict[str, Tried],
                      current=s.current, noise=st.noise_pooled, min_shrink=st.min_shrink)
     if found is None:
         return None
-    free = st.sp.model_mask(s.active + found.effects)
-    free[st.sp.own(*found.effects)] = True
+    free = st.sp.fitting(s.active, found.effects)
     s.theta, _, _, _ = st.sp.solve(found.theta, found.hold, free, st.sp.nuisance_mask(),
                                    st.weights)
     # the pair's own shape entries stay where this fit put them

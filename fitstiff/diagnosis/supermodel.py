@@ -165,7 +165,7 @@ class Owner:
     name: str            # flat parameter name
     tested: bool         # has a null value: the score tests it
     null: float          # SI null value (NaN for shape parameters)
-    fixed: bool = False  # a shape parameter held but in its candidate's refit (FIXED_SHAPE)
+    fixed: bool = False  # a shape parameter held on its grid (FIXED_SHAPE)
 
 
 class SuperProblem:
@@ -236,6 +236,13 @@ class SuperProblem:
         return np.array([k for k, o in enumerate(self.owners) if o.term == effect
                          and (tested is None or o.tested == tested)
                          and not (fitted and o.fixed)], dtype=int)
+
+    def fitting(self, active: Sequence[str], effects: Sequence[str]) -> np.ndarray:
+        """Model entries a full fit of ``active`` with the candidates ``effects`` frees: the
+        model's, and the candidates' own with their fixed shape (:meth:`own`)."""
+        free = self.model_mask(list(active) + list(effects))
+        free[self.own(*effects)] = True
+        return free
 
     def own(self, *effects: str) -> np.ndarray:
         """Indices of the model entries a refit of the candidates ``effects`` frees on top
