@@ -6,8 +6,6 @@ from __future__ import annotations
 import json
 import math
 import re
-import subprocess
-import sys
 
 import jax
 import jax.numpy as jnp
@@ -291,10 +289,10 @@ def test_withheld_viscous_is_found_and_named(tmp_path):
         write_log(log, path)
         paths.append(str(path))
     out = tmp_path / "out"
-    proc = subprocess.run([sys.executable, "-m", "fitstiff", "diagnose", *paths,
-                           "--candidates", "viscous,asymmetry,force_drift",
-                           "--out", str(out)], capture_output=True, text=True)
-    assert proc.returncode == 0, proc.stderr
+    from fitstiff.cli import main
+
+    assert main(["diagnose", *paths, "--candidates", "viscous,asymmetry,force_drift",
+                 "--out", str(out)]) == 0
     data = json.loads((out / "diagnosis.json").read_text())
     for key in ("baseline", "gap", "candidates", "accepted", "unexplained", "noise_N",
                 "detectability", "unexplained_structure"):
@@ -323,9 +321,7 @@ def test_withheld_viscous_is_found_and_named(tmp_path):
     again = Diagnosis.from_dict(data)
     assert again.accepted == ("viscous",) and again.candidate("viscous").accepted
     # the diagnosis page: verdict, heat maps, signatures, loops; every figure on disk
-    proc = subprocess.run([sys.executable, "-m", "fitstiff", "report", str(out)],
-                          capture_output=True, text=True)
-    assert proc.returncode == 0, proc.stderr
+    assert main(["report", str(out)]) == 0
     page = (out / "report.html").read_text()
     assert "Accepted: viscous." in page and "Candidate effects" in page
     # the heat maps show N above the noise on one scale (a z-score saturated on real logs)

@@ -412,14 +412,14 @@ def test_fleet_gpu_benchmark_runs_small(tmp_path, monkeypatch):
     scratch.mkdir()
     monkeypatch.setenv("TMPDIR", str(scratch))
     out = tmp_path / "fg.json"
-    run_benchmark("fleet_gpu.py", "--cylinders", "3", "--samples", "1500", "--single", "2",
-                  "--cpu-lanes", "3", "--end-to-end", "--data", tmp_path / "fleet",
+    run_benchmark("fleet_gpu.py", "--cylinders", "2", "--samples", "1500", "--single", "2",
+                  "--cpu-lanes", "2", "--end-to-end", "--data", tmp_path / "fleet",
                   "--json", out)
     r = json.loads(out.read_text())
-    assert r["backends"] == ["cpu"] and r["units"] == 3
+    assert r["backends"] == ["cpu"] and r["units"] == 2
     cpu = r["cpu"]
-    assert cpu["lanes"]["3"]["converged"] == 3 and cpu["single_warm_units_per_s"] > 0
+    assert cpu["lanes"]["2"]["converged"] == 2 and cpu["single_warm_units_per_s"] > 0
     assert cpu["batched_vs_cpu_single_max_rel"] < 1e-6
-    assert r["end_to_end"]["cpu"]["rc"] == 0 and r["end_to_end"]["cpu"]["units"] == 3
+    assert r["end_to_end"]["cpu"]["rc"] == 0 and r["end_to_end"]["cpu"]["units"] == 2
     assert r["end_to_end"]["cpu"]["breakaway_max_rel_vs_cpu"] == 0.0
     assert not [p.name for p in scratch.iterdir() if p.name.startswith("fleet-gpu-e2e-")]

@@ -275,15 +275,13 @@ def test_choices_round_trip_their_description():
 
 # -- the command line -------------------------------------------------------------------------
 @pytest.mark.slow
-def test_diagnose_plans_the_untestable_and_plan_and_report_follow(tmp_path):
+def test_diagnose_plans_the_untestable_and_plan_and_report_follow(tmp_path, capsys):
     """End to end on the independent simulator's logs without a standstill: the diagnosis
     cannot test dwell stiction, so ``fitstiff diagnose`` plans (``next_experiment``,
     ``plan/``), the report draws the programs, and ``fitstiff plan`` answers a question of
     the user's with other limits; bad input exits 2 with one line."""
-    import subprocess
-    import sys
-
     from fitstiff._testing.withheld import make_dataset
+    from fitstiff.cli import main
     from fitstiff.physics.simulate import write_log
 
     logs, _ = make_dataset("missing/dwell_stiction/1", short=True)
@@ -293,16 +291,13 @@ def test_diagnose_plans_the_untestable_and_plan_and_report_follow(tmp_path):
         paths.append(str(tmp_path / f"{log.name}.csv"))
     out, mine = tmp_path / "out", tmp_path / "mine"
 
-    def cli(*argv):
-        return subprocess.run([sys.executable, "-m", "fitstiff", *argv], capture_output=True,
-                              text=True, check=False)
-
+    # the command line in this process (the compiled model of the tests before it is reused);
+    # tests/test_process_faults.py runs ``python -m fitstiff`` as a process
     for argv in (["diagnose", *paths, "--candidates", "dwell_stiction,viscous", "--out",
                   str(out)], ["report", str(out)],
                  ["plan", str(out), "--out", str(mine), "--separate", "viscous",
                   "--max-duration", "6", "--pressures", "3", "6", "--max-programs", "2"]):
-        proc = cli(*argv)
-        assert proc.returncode == 0, proc.stderr
+        assert main(argv) == 0, capsys.readouterr().err
     data = json.loads((out / "diagnosis.json").read_text())
     assert data["detectability"]["dwell_stiction"]["testable"] is False
     planned = data["next_experiment"]["programs"]
@@ -328,9 +323,11 @@ def test_diagnose_plans_the_untestable_and_plan_and_report_follow(tmp_path):
                              "--max-programs", "0"], "--max-programs 0: must be at least 1"),
                            (["plan", str(out), "--out", str(tmp_path / "z"),
                              "--separate", "rubber_band"], "'rubber_band' is not an effect")):
-        proc = cli(*argv)
-        lines = proc.stderr.strip().splitlines()
-        assert proc.returncode == 2 and len(lines) == 1 and fragment in lines[0], proc.stderr
+        capsys.readouterr()
+        code = main(argv)
+        err = capsys.readouterr().err
+        lines = err.strip().splitlines()
+        assert code == 2 and len(lines) == 1 and fragment in lines[0], err
 
 
 def test_a_rival_fitted_once_answers_to_the_name_it_is_asked_for(pause_free):

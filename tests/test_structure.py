@@ -312,14 +312,12 @@ def test_structure_round_trips_through_diagnosis_json(logs):
 
 
 @pytest.mark.slow
-def test_a_ripple_is_described_through_the_diagnosis_and_the_report_draws_it(tmp_path):
+def test_a_ripple_is_described_through_the_diagnosis_and_the_report_draws_it(tmp_path, capsys):
     """End to end on an independent simulator's guide ripple (short logs, two rate
     candidates): no library effect is named, the ripple is described by the position, the
     kept held-out residuals give the same description without diagnosing again (the
     benchmark's path, ``benchmarks/structure.py``), and the report has the panel."""
-    import subprocess
-    import sys
-
+    from fitstiff.cli import main
     from fitstiff.diagnosis.structure import describe_structure
     from fitstiff.inference.problem import Problem
     from fitstiff.physics.simulate import write_log
@@ -331,9 +329,7 @@ def test_a_ripple_is_described_through_the_diagnosis_and_the_report_draws_it(tmp
     out = tmp_path / "out"
     for argv in (["diagnose", *paths, "--candidates", "viscous,stribeck", "--out", str(out)],
                  ["report", str(out)]):
-        proc = subprocess.run([sys.executable, "-m", "fitstiff", *argv], capture_output=True,
-                              text=True, check=False)
-        assert proc.returncode == 0, proc.stderr
+        assert main(argv) == 0, capsys.readouterr().err
     data = json.loads((out / "diagnosis.json").read_text())
     assert data["accepted"] == []
     found = [u for u in data["unexplained_structure"] if u["accepted"]]
