@@ -387,3 +387,26 @@ def test_the_closed_loop_table_counts_named_exactly_per_stage():
     assert table["effects"]["after_planned"]["k"] == 2
     assert table["nulls"]["after_planned"]["k"] == 1
     assert table["no_plan_needed"] == 1 and table["plan_s_max"] == 13.0
+
+
+@pytest.mark.parametrize("dataset, alone", [("single/stribeck/4", True),
+                                            ("single/stribeck/8", False)])
+def test_an_effect_one_log_alone_determines_says_which_log(dataset, alone):
+    """Stribeck friction at 1.34 mm/s shows in the slow log (1.4 mm/s) and only at the
+    reversal samples of the fast ones (7 and 25 mm/s), where its level and velocity trade
+    off: left out, the slow log is predicted by folds that find no Stribeck friction, so
+    its held-out refit gains little although the score test finds it (log p -395). The
+    candidate's why says which log alone determines it and what to record. At 2.8 mm/s
+    (``/8``) the 5.8 mm/s log sees it too: no such sentence."""
+    from fitstiff.diagnosis import diagnose
+
+    logs, truth = datasets.make_dataset(dataset)
+    d = diagnose(logs, baseline=truth["baseline"], candidates="stribeck", structure=False)
+    c = d.candidate("stribeck")
+    assert not c.accepted and c.p_value < 1e-10
+    said = "alone determines it" in c.why
+    assert said == alone, c.why
+    if alone:
+        slow = logs[0].name
+        assert f"the fold that leaves out log {slow} finds stribeck_ratio 1.00" in c.why
+        assert f"log {slow} alone determines it" in c.why and "record a second log" in c.why
