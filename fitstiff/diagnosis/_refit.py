@@ -24,8 +24,7 @@ from fitstiff.physics.params import to_display
 from fitstiff.physics.terms import TERMS, FrictionBase, MaxwellSlip
 
 __all__ = ["Start", "Tried", "FoldStarts", "judge", "lone_log", "on_bound", "worse_log",
-           "refit_start",
-           "maxwell_shape", "fold_fits", "at_null"]
+           "refit_start", "maxwell_shape", "fold_fits", "at_null"]
 
 _MAXWELL_SHAPE = (0.25, 0.5, 1.0, 2.0)   # slip displacements, multiples of breakaway / slope
 _PAPER_BREAKAWAY, _PAPER_SLOPE = 18.0, 40e3     # N, N/m: the paper's seal
@@ -116,6 +115,7 @@ def lone_log(sp: SuperProblem, s: Score, ho: HeldOut) -> str | None:
         return None
     k = par.names.index(s.parameter)
     null = sp.owners[k].null
+    # with two logs or more the folds leave out one log each, in the logs' order (folds_for)
     values = np.array([float(f.hold[k]) for f in ho.fits])
     p = par.entries[k].param
     away = values - null
@@ -123,9 +123,10 @@ def lone_log(sp: SuperProblem, s: Score, ho: HeldOut) -> str | None:
         others = np.delete(away, j)
         if not (np.all(others > 0) or np.all(others < 0)):
             continue
-        bound = any(math.isfinite(b) and b != null
-                    and abs(values[j] - b) <= _BOUND * max(abs(p.upper - p.lower), abs(b))
-                    for b in (p.lower, p.upper))
+        bound = any(math.isfinite(b) and b != null and abs(values[j] - b) <= _BOUND * (
+                        p.upper - p.lower if math.isfinite(p.upper - p.lower)
+                        else max(abs(b), abs(values[j]), 1e-300))
+                    for b in (p.lower, p.upper))   # as on_bound reads a bound
         if bound or abs(away[j]) <= _LONE * float(np.min(np.abs(others))):
             others = np.delete(values, j)
             shown = [next(iter(to_display(sp.problem.model, {s.parameter: v}).values()))
