@@ -86,10 +86,10 @@ def run_dataset(dataset_id: str, rate_scale: float = 1.0, short: bool = False,
         "top1": d.candidates[0].effect if d.candidates else None,
         "ranked": ranked[:5],
         # every held-out refit (its last round): the acceptance rule's gains and shrinks,
-        # to calibrate its thresholds on the stored records
+        # to calibrate its thresholds on the stored records, and why it was not accepted
         "refits": [{"effect": c.effect, "round": c.round, "before_N": c.heldout_rms_before_N,
                     "after_N": c.heldout_rms_after_N, "shrink": c.shrink,
-                    "accepted": c.accepted, "together": list(c.together)}
+                    "accepted": c.accepted, "together": list(c.together), "why": c.why}
                    for c in d.candidates if c.heldout_rms_after_N is not None],
         "detectability": {k: dict(v) for k, v in d.detectability.items()
                           if k in truth["withheld"]},
