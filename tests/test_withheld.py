@@ -5,6 +5,7 @@ computed right, and a small run goes through the diagnosis."""
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -406,7 +407,14 @@ def test_an_effect_one_log_alone_determines_says_which_log(dataset, alone):
     assert not c.accepted and c.p_value < 1e-10
     said = "alone determines it" in c.why
     assert said == alone, c.why
+    assert c.determined_by == (logs[0].name if alone else "")
+    told = [line for line in d.verdict if "alone determines it" in line]
+    assert len(told) == int(alone), d.verdict
     if alone:
         slow = logs[0].name
         assert f"the fold that leaves out log {slow} finds stribeck_ratio 1.00" in c.why
         assert f"log {slow} alone determines it" in c.why and "record a second log" in c.why
+        assert told[0].startswith("stribeck is significant (p = ") and "record a second log" \
+            in told[0]
+        again = type(d).from_dict(json.loads(json.dumps(d.to_dict())))
+        assert again.candidate("stribeck").determined_by == slow

@@ -62,6 +62,8 @@ class Tried:
     passes: bool
     why: str
     starts: tuple[FoldFit, ...]
+    #: the log that alone determines the effect, where :func:`lone_log` found one
+    determined_by: str = ""
 
     @property
     def effect(self) -> str:
@@ -91,17 +93,17 @@ def judge(sp: SuperProblem, s: Score, ho: HeldOut, starts, *, current: HeldOut,
            else bound if bound is not None else worse)
     lone = lone_log(sp, s, ho) if not passes and ho.converged and gain > 0 else None
     if lone is not None:
-        why += "; " + lone
-    return Tried(s, ho, shrink, passes, why, tuple(starts))
+        why += "; " + lone[1]
+    return Tried(s, ho, shrink, passes, why, tuple(starts), lone[0] if lone else "")
 
 
-def lone_log(sp: SuperProblem, s: Score, ho: HeldOut) -> str | None:
+def lone_log(sp: SuperProblem, s: Score, ho: HeldOut) -> tuple[str, str] | None:
     """Why a candidate's held-out refit gains little when one log alone determines it: every
     fold that trains on that log finds the effect (its main parameter off its null, on one
     side), and the fold that leaves it out does not (within :data:`_LONE` of the nearest
     one's distance from the null, or on a bound of its range): the other logs cannot pin
-    it, so that log, held out, is predicted without it; or None. Leave-one-log-out with
-    three logs or more.
+    it, so that log, held out, is predicted without it: that log's name and the sentence
+    that says so; or None. Leave-one-log-out with three logs or more.
 
     Seen on the withheld Stribeck sets whose Stribeck velocity is 1.1-1.4 mm/s: the slow log
     (1.4 mm/s) shows the friction's rise, the faster ones (5-30 mm/s) only at their reversal
@@ -133,7 +135,7 @@ def lone_log(sp: SuperProblem, s: Score, ho: HeldOut) -> str | None:
                      for v in (values[j], others.min(), others.max())]
             unit = "" if sp.units[s.parameter] == "-" else " " + sp.units[s.parameter]
             name = sp.problem.logs[j].name
-            return (f"the fold that leaves out log {name} finds {s.parameter} "
+            return name, (f"the fold that leaves out log {name} finds {s.parameter} "
                     f"{shown[0]:.4g}{unit}, the folds that train on it "
                     f"{shown[1]:.4g}-{shown[2]:.4g}{unit}: log {name} alone determines it, "
                     "and held out it is predicted from logs that cannot; record a second log "

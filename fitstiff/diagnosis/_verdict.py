@@ -9,6 +9,7 @@ import math
 import numpy as np
 
 from fitstiff.diagnosis.gap import pooled_excess
+from fitstiff.physics.terms import TERMS
 
 __all__ = ["cell", "region_records", "verdict"]
 
@@ -48,6 +49,10 @@ def verdict(baseline, accepted, decided, gap, still, noise, described=()) -> lis
         lines += [f"{e}: {decided[e].reading}" for e in accepted if decided[e].reading]
         lines += [f"{e} could also be something outside the library: {decided[e].lookalike}"
                   for e in accepted if decided[e].lookalike]
+    lines += [f"{c.effect} is significant (p = {c.p_text}) but log {c.determined_by} alone "
+              "determines it, so held-out data cannot confirm it: record a second log that "
+              f"excites it ({TERMS[c.effect].excitation})"
+              for c in decided.values() if c.determined_by and not c.accepted]
     if still.empty:
         lines.append("nothing stays above the noise floor")
     else:

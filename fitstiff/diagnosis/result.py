@@ -50,6 +50,10 @@ class Candidate:
     #: the accepted effect it tied with on held-out data (told apart by the fits to all the
     #: data only, :mod:`fitstiff.planning` proposes the experiment that separates them)
     tied_with: str = ""
+    #: the log that alone determines it, where its held-out refit found one: every fold that
+    #: trains on that log finds the effect, the fold that leaves it out does not, so the
+    #: held-out rule cannot confirm it (:func:`fitstiff.diagnosis._refit.lone_log`)
+    determined_by: str = ""
 
     @property
     def p_text(self) -> str:
