@@ -136,10 +136,10 @@ def lone_log(sp: SuperProblem, s: Score, ho: HeldOut) -> tuple[str, str] | None:
             unit = "" if sp.units[s.parameter] == "-" else " " + sp.units[s.parameter]
             name = sp.problem.logs[j].name
             return name, (f"the fold that leaves out log {name} finds {s.parameter} "
-                    f"{shown[0]:.4g}{unit}, the folds that train on it "
-                    f"{shown[1]:.4g}-{shown[2]:.4g}{unit}: log {name} alone determines it, "
-                    "and held out it is predicted from logs that cannot; record a second log "
-                    f"that excites it ({TERMS[s.effect].excitation})")
+                          f"{shown[0]:.4g}{unit}, the folds that train on it "
+                          f"{shown[1]:.4g}-{shown[2]:.4g}{unit}: log {name} alone determines "
+                          "it, and held out it is predicted from logs that cannot; record a "
+                          f"second log that excites it ({TERMS[s.effect].excitation})")
     return None
 
 
