@@ -29,6 +29,7 @@ Resumable (finished datasets are kept in the JSON and skipped); one line per dat
     python benchmarks/withheld.py --family single --seeds 5 --nulls 0
     python benchmarks/withheld.py --effects dwell_stiction --nulls 5   # what withholds it
     python benchmarks/withheld.py --plan --family missing --seeds 4 --nulls 0
+    python benchmarks/withheld.py --family single null --seeds 3 --one-log 0 --json F  # log 0 alone
 """
 
 from __future__ import annotations
@@ -93,8 +94,8 @@ def _save(path: Path, records: Mapping[str, Mapping[str, object]], figure: bool,
 
 
 def run_many(ids: Sequence[str], *, workers: int = 2, rate_scale: float = 1.0,
-             max_crashes: int = 2, residuals: Path | None = None, loop: bool = False
-             ) -> Iterable[dict[str, object]]:
+             max_crashes: int = 2, residuals: Path | None = None, loop: bool = False,
+             one_log: int | None = None) -> Iterable[dict[str, object]]:
     """Diagnose ``ids`` in a pool of ``workers`` processes, a fresh process per dataset
     (compiled code does not pile up; a crash loses one dataset, not the run). A dataset
     whose worker died ``max_crashes`` times is recorded as an error."""
@@ -105,7 +106,8 @@ def run_many(ids: Sequence[str], *, workers: int = 2, rate_scale: float = 1.0,
         with cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx,
                                     max_tasks_per_child=1) as pool:
             futures = {(pool.submit(run_closed_loop, d, rate_scale) if loop else
-                        pool.submit(run_dataset, d, rate_scale, residuals=residuals)): d
+                        pool.submit(run_dataset, d, rate_scale, residuals=residuals,
+                                    one_log=one_log)): d
                        for d in pending}
             try:
                 for f in cf.as_completed(futures):
@@ -143,6 +145,9 @@ def main(argv: Sequence[str] | None = None) -> None:
                              "EFFECT (anything accepted; else screened at p < 0.01, refitted, "
                              "or hidden below the ranked ones): after a change to that "
                              "candidate alone, the others' stored records stand")
+    parser.add_argument("--one-log", type=int, default=None, metavar="K",
+                        help="diagnose log K of each dataset alone (leave-one-block-out "
+                             "folds); keep its records in their own --json")
     parser.add_argument("--no-figure", action="store_true")
     parser.add_argument("--residuals", type=Path, default=None, metavar="DIR",
                         help="keep each dataset's held-out residuals in DIR (one .npz each)")
@@ -176,7 +181,7 @@ def main(argv: Sequence[str] | None = None) -> None:
           f"with {args.workers} worker(s)", flush=True)
     start = time.perf_counter()
     for r in run_many(todo, workers=args.workers, rate_scale=args.rate_scale,
-                      residuals=args.residuals, loop=args.plan):
+                      residuals=args.residuals, loop=args.plan, one_log=args.one_log):
         records[r["id"]] = r
         print(_loop_line(r) if args.plan else describe(r), flush=True)
         _save(args.json, records, not args.no_figure, args.plan)

@@ -190,3 +190,40 @@ def test_a_batch_of_models_held_out_together_gives_each_ones_own_figures(one_eff
     for r, s in zip(ho.residuals, alone[1].residuals):
         np.testing.assert_array_equal(r, s)
     assert alone[1].steps < ho.steps < 2 * alone[1].steps
+
+
+def test_a_held_out_blocks_own_nuisances_start_from_its_own_data():
+    """The fold rule for a held-out block that starts its log: its initial friction state
+    is fitted to the block alone, so no training step may move it. The slow log of
+    withheld ``single/stribeck/4`` alone: the Stribeck screen's joint step, computed on the
+    other blocks (which the state barely touches), put it at -449 in the solver's
+    coordinates (saturated: the block's own solve could not leave it) and the refit
+    predicted that block at 2.7 N against the baseline's 0.18 N. Every refit start keeps the
+    fold's own value, and the Stribeck refit predicts every block better than the baseline."""
+    from fitstiff._testing.withheld import make_dataset
+    from fitstiff.diagnosis._refit import FoldStarts, fold_fits
+    from fitstiff.diagnosis.diagnose import baseline_fit, noise_floors
+    from fitstiff.diagnosis.select import Job, fold_starts, folds_for, held_out, held_out_batch
+    from fitstiff.diagnosis.supermodel import SuperProblem
+
+    logs, truth = make_dataset("single/stribeck/4")
+    sp = SuperProblem([logs[0]], truth["baseline"], ["stribeck"])
+    folds = folds_for(sp)
+    assert len(folds) == 4 and folds[0].samples[1][0]
+    active = list(sp.baseline_terms)
+    current = held_out(sp, folds, fold_starts(sp, folds), active)
+    fits = fold_fits(sp, current, active)
+    noise, _ = noise_floors(sp, baseline_fit(sp))
+    starts = FoldStarts(sp, folds, fits, active, noise=noise, alpha=0.05).of("stribeck")
+    for fold, fit, start in zip(folds, fits, starts):
+        own = sp.n_model + np.flatnonzero(fold.nuisances(sp)[1])
+        for s in (start, *start.also):
+            np.testing.assert_array_equal(s.theta[own], fit.theta[own])
+    assert np.flatnonzero(folds[0].nuisances(sp)[1]).size == 1
+    ho = held_out_batch(sp, folds, [Job(starts, active, sp.elements("stribeck", fitted=True))])[0]
+    assert ho.converged
+    for fold in folds:
+        mask = fold.samples[1]
+        before, after = (float(np.sqrt(np.mean(r[0][mask] ** 2)))
+                         for r in (current.residuals, ho.residuals))
+        assert after < before, (np.flatnonzero(mask)[[0, -1]], before, after)

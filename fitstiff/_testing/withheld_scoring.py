@@ -53,16 +53,20 @@ def dataset_ids(*, families: Sequence[str] = FAMILIES, seeds: int = 5, nulls: in
 
 
 def run_dataset(dataset_id: str, rate_scale: float = 1.0, short: bool = False,
-                candidates: str = "all", residuals: Path | None = None) -> dict[str, object]:
+                candidates: str = "all", residuals: Path | None = None,
+                one_log: int | None = None) -> dict[str, object]:
     """Generate and diagnose one dataset; the record kept in the JSON. ``short`` and
     ``candidates`` (fewer than all) make the small version of the test suite. ``residuals``:
     a folder to keep the held-out residuals in (``heldout.npz`` content, one
-    ``<id with / as __>.npz`` per dataset), to study them without diagnosing again."""
+    ``<id with / as __>.npz`` per dataset), to study them without diagnosing again.
+    ``one_log``: diagnose that log of the dataset alone (its folds are blocks of loops)."""
     from fitstiff.diagnosis import diagnose
 
     start = time.perf_counter()
     try:
         logs, truth = make_dataset(dataset_id, rate_scale=rate_scale, short=short)
+        if one_log is not None:
+            logs = [logs[one_log]]
         sim_s = time.perf_counter() - start
         d = diagnose(logs, baseline=truth["baseline"], candidates=candidates)
     except Exception as exc:      # a failure is a result too: keep it, do not stop the run
@@ -100,7 +104,7 @@ def run_dataset(dataset_id: str, rate_scale: float = 1.0, short: bool = False,
         "unexplained_cells": len(d.unexplained),
         "structure": structure_records(d.unexplained_structure),
         "baseline_converged": bool(gap["baseline_converged"]),
-        "samples": sum(len(log) for log in logs), "logs": len(logs),
+        "samples": sum(len(log) for log in logs), "logs": len(logs), "one_log": one_log,
         "truth": {k: truth[k] for k in ("effects", "out_of_library", "base", "noise",
                                         "excitation", "logs")},
         "sim_s": sim_s, "wall_s": wall, "timing_s": dict(d.timing_s),

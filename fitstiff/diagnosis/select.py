@@ -29,7 +29,7 @@ part. Each fold carries its own fit (:class:`FoldFit`) from round to round: the 
 starts from :meth:`~fitstiff.diagnosis.supermodel.SuperProblem.start` on the fold's training
 samples alone; a candidate's refit starts from the fold's fit of the current model with the
 candidate's one-step values computed on the fold's training data (the score screen with the
-fold's weights); an accepted effect's fold fits become the next round's starts. The full-data
+fold's weights; its joint step moves only what the fold's training solve frees); an accepted effect's fold fits become the next round's starts. The full-data
 fit only screens, breaks ties (BIC) and reports the parameters. A fold's solve is checked with
 the tolerances of a cold fit. A left-out log's own nuisances (force offset, initial friction
 state) are fitted to it alone with the trained model held, and start from that log's own data;
@@ -89,6 +89,19 @@ class Fold:
             return sp.entry_weights(logs=[i for i in range(sp.problem.n_logs) if i != self.log])
         i, mask = self.samples
         return sp.entry_weights(samples={i: ~mask})
+
+    def nuisances(self, sp: SuperProblem) -> tuple[np.ndarray, np.ndarray]:
+        """Masks over the nuisance entries: those the fold's training solve frees, and those
+        only its held-out part owns (a left-out log's; the initial friction state of a
+        held-out block that starts its log, which the rest of the log does not inform), fitted
+        to that part alone with the trained model held and never moved by a training step."""
+        if self.log is not None:
+            others = [i for i in range(sp.problem.n_logs) if i != self.log]
+            return sp.nuisance_mask(others), sp.nuisance_mask([self.log])
+        i, mask = self.samples
+        own = (sp.nuisance_mask([i], names=_BLOCK_OWN) if mask[0]
+               else np.zeros(sp.size - sp.n_model, dtype=bool))
+        return sp.nuisance_mask() & ~own, own
 
     def seen(self, n_samples: Sequence[int]) -> list[np.ndarray | None]:
         """Per log, the samples the training part holds (``None``: the left-out log), for
@@ -195,23 +208,10 @@ def held_out_batch(sp: SuperProblem, folds: Sequence[Fold], jobs: Sequence[Job]
         out[job.extra] = True
         return out
 
-    def nuisances(fold: Fold) -> tuple[np.ndarray, np.ndarray]:
-        """The nuisances the fold trains, and those only its held-out part owns."""
-        if fold.log is not None:
-            others = [i for i in range(p.n_logs) if i != fold.log]
-            return sp.nuisance_mask(others), sp.nuisance_mask([fold.log])
-        i, mask = fold.samples
-        # a block that holds the log's first sample owns its initial friction state (the
-        # rest of the log does not inform it): fitted to the block alone, as a left-out
-        # log's nuisances are
-        own = (sp.nuisance_mask([i], names=_BLOCK_OWN) if mask[0]
-               else np.zeros(sp.size - sp.n_model, dtype=bool))
-        return sp.nuisance_mask() & ~own, own
-
     # per model its free entries, per fold its training weights and nuisance masks: once
     frees = [free(job) for job in jobs]
     training = [fold.training(sp) for fold in folds]
-    masks = [nuisances(fold) for fold in folds]
+    masks = [fold.nuisances(sp) for fold in folds]
 
     def train(j: int, k: int, start: FoldFit):
         """One training solve: ``(theta, converged, steps, cost, hold)``."""
