@@ -761,3 +761,40 @@ def test_a_candidate_whose_column_is_not_finite_is_not_testable_and_the_screen_g
     with pytest.raises(FitstiffError, match=r"not finite \(Fc\)"):
         screen(sp, theta, hold, active=["chamber", "dahl"], candidates=["viscous"],
                noise=noise, weights=sp.entry_weights(), alpha=0.05, min_gain=0.05)
+
+
+def test_a_lone_log_effect_that_another_log_contradicts_is_not_judged_on_blocks(monkeypatch):
+    """An effect one log alone determines is judged on that log's held-out blocks only when
+    its leave-one-log-out refit predicts no left-out log worse by MIN_GAIN of the noise
+    floor: the other logs cannot pin it, but they must not contradict it. A refit that
+    passed, or that no single log determines, is left as it was."""
+    import dataclasses
+    from types import SimpleNamespace
+
+    from fitstiff.diagnosis import _lone
+    from fitstiff.diagnosis._refit import Tried
+    from fitstiff.diagnosis.select import HeldOut
+
+    sp = SimpleNamespace(problem=SimpleNamespace(logs=[SimpleNamespace(name=n)
+                                                       for n in ("slow", "fast", "faster")]))
+    current = HeldOut((), 0.30, (0.40, 0.25, 0.20), True, 0)
+    after = HeldOut((), 0.29, (0.36, 0.25, 0.215), True, 0)       # "faster" 15 mN worse
+    t = Tried(SimpleNamespace(effect="stribeck"), after, 0.1, False, "removes only 10%",
+              (), determined_by="slow")
+    calls = []
+    monkeypatch.setattr(_lone, "on_blocks", lambda *a, **k: calls.append(a))
+    kw = dict(current=current, noise=(), noise_pooled=0.2, alpha=0.05, min_shrink=0.3)
+    out = _lone.confirm(sp, t, ["chamber", "dahl"], **kw)
+    assert not out.passes and out.blocks is None and calls == []
+    assert out.why == "removes only 10%; held out across the logs it predicts log faster " \
+                      "worse (0.2 -> 0.215 N)"
+    for same in (dataclasses.replace(t, passes=True, why=""),
+                 dataclasses.replace(t, determined_by="")):
+        assert _lone.confirm(sp, same, ["chamber", "dahl"], **kw) is same
+    # within MIN_GAIN of the floor it goes on to the blocks
+    fine = dataclasses.replace(t, heldout=HeldOut((), 0.29, (0.36, 0.25, 0.205), True, 0))
+    check = _lone.BlockCheck("slow", 0.4, 0.3, 0.2, 0.5, True)
+    monkeypatch.setattr(_lone, "on_blocks", lambda *a, **k: calls.append(a) or check)
+    out = _lone.confirm(sp, fine, ["chamber", "dahl"], **kw)
+    assert out.passes and out.why == "" and out.blocks is check
+    assert calls[0][1:4] == ("stribeck", 0, ["chamber", "dahl"])
