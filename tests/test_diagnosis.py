@@ -599,30 +599,6 @@ def test_an_accepted_effect_the_others_make_redundant_is_dropped(junction_logs):
     kept = prune(sp, folds, [("dwell_stiction",)], current, theta, hold, both,
                  weights, noise=noise, min_shrink=0.3)
     assert kept.dropped == {}
-    # an effect accepted on held-out blocks of the one log that determines it is judged on
-    # those blocks (leave-one-log-out cannot see it): kept when they confirm it, dropped with
-    # their why when they do not
-    from fitstiff.diagnosis._lone import BlockCheck
-
-    asked = []
-
-    def blocks(passes):
-        def check(effect, rest):
-            asked.append((effect, list(rest)))
-            return BlockCheck("log0", 0.3, 0.2 if passes else 0.299, 0.1, 0.5 if passes
-                              else 0.005, passes, "" if passes else "it removes only 0% of "
-                              "its gap above the noise (needs 30%)") if effect == "viscous" \
-                else None
-        return check
-
-    kept = prune(sp, folds, [("viscous",), ("dwell_stiction",)], current, theta, hold, both,
-                 weights, noise=noise, min_shrink=0.3, on_blocks=blocks(True))
-    assert kept.dropped == {} and kept.active == both
-    assert asked[0] == ("viscous", base + ["dwell_stiction"])
-    gone = prune(sp, folds, [("dwell_stiction",), ("viscous",)], current, theta, hold, both,
-                 weights, noise=noise, min_shrink=0.3, on_blocks=blocks(False))
-    assert list(gone.dropped) == [("viscous",)]
-    assert "on held-out blocks of log log0 it removes only 0%" in gone.dropped[("viscous",)]
 
 
 @pytest.mark.slow

@@ -64,9 +64,6 @@ class Tried:
     starts: tuple[FoldFit, ...]
     #: the log that alone determines the effect, where :func:`lone_log` found one
     determined_by: str = ""
-    #: the rule on held-out blocks of that log (:mod:`fitstiff.diagnosis._lone`), where it
-    #: was applied: a ``BlockCheck``
-    blocks: object | None = None
 
     @property
     def effect(self) -> str:

@@ -25,7 +25,6 @@ import numpy as np
 from fitstiff.diagnosis._candidates import (improved_regions, parameter_entries, refitted,
                                             screened)
 from fitstiff.diagnosis._choice import MAX_REFITS, choose, pair
-from fitstiff.diagnosis._lone import confirm, on_blocks
 from fitstiff.diagnosis._refit import FoldStarts, Tried, fold_fits, judge
 from fitstiff.diagnosis.prune import prune
 from fitstiff.diagnosis.result import Candidate
@@ -145,11 +144,8 @@ def _refits(st: Setting, s: Search, starts: FoldStarts) -> dict[str, Tried]:
                 Job(f, s.active, st.sp.elements(x.effect, fitted=True))
                 for x, f in zip(batch, fold_start)])
             for score, ho, f in zip(batch, heldout, fold_start):
-                tried[score.effect] = confirm(
-                    st.sp, judge(st.sp, score, ho, f, current=s.current,
-                                 noise=st.noise_pooled, min_shrink=st.min_shrink),
-                    s.active, current=s.current, noise=st.noise,
-                    noise_pooled=st.noise_pooled, alpha=st.alpha, min_shrink=st.min_shrink)
+                tried[score.effect] = judge(st.sp, score, ho, f, current=s.current,
+                                            noise=st.noise_pooled, min_shrink=st.min_shrink)
             _refine_shapes(st, s, tried, names)
     return tried
 
@@ -248,15 +244,9 @@ def prune_accepted(st: Setting, s: Search) -> None:
     """Drop the accepted effects that the others made redundant
     (:func:`~fitstiff.diagnosis.prune.prune`), with why on their records."""
     with phase(st.spent, "refits"):
-        logs = [log.name for log in st.sp.problem.logs]
-        lone = {e: logs.index(s.decided[e].heldout_blocks["log"]) for e in s.accepted
-                if s.decided[e].heldout_blocks}
         pruned = prune(st.sp, st.folds, [s.decided[e].together or (e,) for e in s.accepted],
                        s.current, s.theta, s.hold, s.active, st.weights,
-                       noise=st.noise_pooled, min_shrink=st.min_shrink,
-                       on_blocks=lambda e, rest: on_blocks(
-                           st.sp, e, lone[e], rest, noise=st.noise, alpha=st.alpha,
-                           min_shrink=st.min_shrink) if e in lone else None)
+                       noise=st.noise_pooled, min_shrink=st.min_shrink)
     s.current, s.theta, s.hold, s.active = (pruned.current, pruned.theta, pruned.hold,
                                             pruned.active)
     for unit, why in pruned.dropped.items():

@@ -49,8 +49,6 @@ def verdict(baseline, accepted, decided, gap, still, noise, described=()) -> lis
         lines += [f"{e}: {decided[e].reading}" for e in accepted if decided[e].reading]
         lines += [f"{e} could also be something outside the library: {decided[e].lookalike}"
                   for e in accepted if decided[e].lookalike]
-        lines += [_on_blocks(e, decided[e].heldout_blocks) for e in accepted
-                  if decided[e].heldout_blocks]
     lines += [f"{c.effect} is significant (p = {c.p_text}) but log {c.determined_by} alone "
               "determines it, so held-out data cannot confirm it: record a second log that "
               f"excites it ({TERMS[c.effect].excitation})"
@@ -90,13 +88,3 @@ def _explained(accepted, decided, before: float, after: float, noise: float) -> 
     return ("; ".join(parts) + f" (held-out RMS {before:.3g} -> {after:.3g} N, "
             f"{(before - after) / total:.0%} of the gap above the noise floor "
             f"{noise:.3g} N)")
-
-
-def _on_blocks(effect: str, b) -> str:
-    """The verdict's line of an effect accepted on held-out blocks of the one log that
-    determines it (:mod:`fitstiff.diagnosis._lone`)."""
-    return (f"{effect} rests on log {b['log']} alone (the other logs cannot determine it): "
-            f"held out by blocks of that log's loops it removes {b['shrink']:.0%} of the "
-            f"log's gap ({b['heldout_rms_before_N']:.3g} -> {b['heldout_rms_after_N']:.3g} N,"
-            f" noise {b['noise_N']:.3g} N); record a second log that excites it "
-            f"({TERMS[effect].excitation}) to confirm it across logs")

@@ -6,17 +6,13 @@ the model are dropped (:func:`prune`).
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
-from typing import TYPE_CHECKING, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 
 from fitstiff.diagnosis._refit import at_null
 from fitstiff.diagnosis.select import MIN_GAIN, FoldFit, HeldOut, Job, held_out_batch
 from fitstiff.diagnosis.supermodel import SuperProblem
-
-if TYPE_CHECKING:
-    from fitstiff.diagnosis._lone import BlockCheck
 
 __all__ = ["Pruned", "prune"]
 
@@ -43,14 +39,10 @@ class _Removal(NamedTuple):
     shrink: float
     heldout: HeldOut
     rest: list[str]
-    #: the rule on held-out blocks, for an effect accepted there
-    blocks: BlockCheck | None = None
 
 
 def prune(sp: SuperProblem, folds, units: list[tuple[str, ...]], current: HeldOut, theta,
-          hold, active, weights, *, noise: float, min_shrink: float,
-          on_blocks: Callable[[str, list[str]], BlockCheck | None] = lambda e, rest: None
-          ) -> Pruned:
+          hold, active, weights, *, noise: float, min_shrink: float) -> Pruned:
     """Accepted effects that no longer pass the rule once the others are in the model,
     dropped.
 
@@ -74,10 +66,6 @@ def prune(sp: SuperProblem, folds, units: list[tuple[str, ...]], current: HeldOu
         weights: the full-data run-time weights.
         noise: the pooled noise floor (N).
         min_shrink: the acceptance rule's least share of the gap above the noise.
-        on_blocks: for an effect accepted on held-out blocks of the one log that determines
-            it, the rule on those blocks with the effect added to the given terms
-            (:func:`~fitstiff.diagnosis._lone.on_blocks`); None for the others. Such an
-            effect is judged there, as it was accepted: leave-one-log-out cannot see it.
 
     Returns:
         The :class:`Pruned` model.
@@ -94,22 +82,16 @@ def prune(sp: SuperProblem, folds, units: list[tuple[str, ...]], current: HeldOu
             gain = ho.rms_N - current.rms_N
             shrink = gain / (ho.rms_N - noise) if ho.rms_N > noise else float("nan")
             keeps = gain >= MIN_GAIN * noise and math.isfinite(shrink) and shrink >= min_shrink
-            check = on_blocks(unit[0], rest) if len(unit) == 1 else None
-            if check is not None:
-                keeps = check.passes
             if ho.converged and not keeps and (worst is None or gain < worst.gain):
-                worst = _Removal(unit, gain, shrink, ho, rest, check)
+                worst = _Removal(unit, gain, shrink, ho, rest)
         if worst is None:
             break
         others = " and ".join(e for u in units if u != worst.unit for e in u)
         dropped[worst.unit] = (
-            f"accepted in an earlier round, but with {others} in the model "
-            + (f"on held-out blocks of log {worst.blocks.log} {worst.blocks.why}"
-               if worst.blocks is not None else
-               f"it lowers the held-out RMS by only {worst.gain:.2g} N "
-               f"({worst.heldout.rms_N:.3g} -> {current.rms_N:.3g} N, {worst.shrink:.0%} of "
-               f"the gap above the noise; needs {min_shrink:.0%} and {MIN_GAIN * noise:.2g} "
-               "N)") + ": dropped")
+            f"accepted in an earlier round, but with {others} in the model it lowers the "
+            f"held-out RMS by only {worst.gain:.2g} N ({worst.heldout.rms_N:.3g} -> "
+            f"{current.rms_N:.3g} N, {worst.shrink:.0%} of the gap above the noise; needs "
+            f"{min_shrink:.0%} and {MIN_GAIN * noise:.2g} N): dropped")
         units.remove(worst.unit)
         active, current = worst.rest, worst.heldout
         hold = at_null(sp, hold, worst.unit)

@@ -54,11 +54,6 @@ class Candidate:
     #: trains on that log finds the effect, the fold that leaves it out does not, so the
     #: held-out rule cannot confirm it (:func:`fitstiff.diagnosis._refit.lone_log`)
     determined_by: str = ""
-    #: the acceptance rule on held-out blocks of that log (every other log in the training
-    #: part), where it was applied: ``log``, ``heldout_rms_before_N``,
-    #: ``heldout_rms_after_N``, ``noise_N``, ``shrink`` (:mod:`fitstiff.diagnosis._lone`);
-    #: an effect accepted this way rests on that log alone
-    heldout_blocks: Mapping[str, object] | None = None
 
     @property
     def p_text(self) -> str:

@@ -14,9 +14,7 @@ current model's by at least 5 % of the noise floor (``MIN_GAIN``: the floor itse
 to a few per cent); (4) it removes at least ``min_shrink`` of the gap above the noise floor,
 ``shrink = (before - after) / (before - noise)``; and (5) an effect the logs test only against
 each other (``Score.between_logs``) predicts no left-out log worse by ``MIN_GAIN`` of the noise
-floor or more (:func:`~fitstiff.diagnosis._refit.worse_log`). An effect that one log alone
-determines (:func:`~fitstiff.diagnosis._refit.lone_log`) is judged by (2)-(4) on held-out
-blocks of that log instead (:mod:`fitstiff.diagnosis._lone`). Among the candidates that
+floor or more (:func:`~fitstiff.diagnosis._refit.worse_log`). Among the candidates that
 pass, the one with the lowest held-out RMS is accepted; the screen is then repeated on the
 enlarged model, until none passes. Then each accepted effect is judged as if it had been
 added last (the final model without it against with it, by conditions (3) and (4)) and
@@ -56,8 +54,8 @@ import numpy as np
 from fitstiff.diagnosis.supermodel import SuperProblem, best_solve
 from fitstiff.errors import InputError
 
-__all__ = ["FOLD_THREADS", "Fold", "FoldFit", "HeldOut", "Job", "MIN_GAIN", "blocks",
-           "fold_starts", "folds_for", "held_out", "held_out_batch"]
+__all__ = ["FOLD_THREADS", "Fold", "FoldFit", "HeldOut", "Job", "MIN_GAIN", "fold_starts",
+           "folds_for", "held_out", "held_out_batch"]
 
 #: least fall of the held-out RMS, as a share of the noise floor: the floor is estimated to a
 #: few per cent, so a smaller fall cannot be told from its error (on the stribeck set a time
@@ -141,19 +139,11 @@ def folds_for(sp: SuperProblem) -> list[Fold]:
     p = sp.problem
     if p.n_logs >= 2:
         return [Fold(i) for i in range(p.n_logs)]
-    return blocks(sp, 0)
-
-
-def blocks(sp: SuperProblem, i: int) -> list[Fold]:
-    """Blocks of consecutive loops of log ``i`` held out in turn (up to
-    :data:`MAX_LOOP_FOLDS`), every other log in each fold's training part: the folds of a
-    single log, and of an effect that one log alone determines
-    (:mod:`fitstiff.diagnosis._lone`)."""
-    p = sp.problem
-    n = len(p.logs[i])
-    loops = p.segmentations[i].loops
+    seg = p.segmentations[0]
+    n = len(p.logs[0])
+    loops = seg.loops
     if len(loops) < 2:
-        raise InputError(p.logs[i].name, "a single log" if p.n_logs == 1 else "a log",
+        raise InputError(p.logs[0].name, "a single log",
                          f"holds {len(loops)} full loop(s): too short to hold out a loop",
                          "give two logs or more, or a log with at least two full loops")
     k = min(MAX_LOOP_FOLDS, len(loops))
@@ -164,7 +154,7 @@ def blocks(sp: SuperProblem, i: int) -> list[Fold]:
     for a, b in zip(edges[:-1], edges[1:]):
         mask = np.zeros(n, dtype=bool)
         mask[a:b] = True
-        out.append(Fold(None, (i, mask)))
+        out.append(Fold(None, (0, mask)))
     return out
 
 
