@@ -76,6 +76,7 @@ def _check_against_plain_fits(logs, d):
 def test_every_heldout_figure_of_one_accepted_effect_equals_plain_fits(one_effect):
     logs, d = one_effect
     assert d.accepted == ("viscous",)
+    assert not [line for line in d.verdict if line.startswith("one log")]
     _check_against_plain_fits(logs, d)
 
 
@@ -102,6 +103,8 @@ def test_leave_one_block_out_equals_plain_fits_of_the_rest_of_the_log():
                                                    pressure_mbar=2.0)).log
     d = diagnose([log], candidates=CANDIDATES)
     assert d.accepted == ("viscous",), d.verdict
+    # what is accepted on one log rests on that log alone, and the verdict says so
+    assert [line for line in d.verdict if line.startswith("one log (one): its blocks")]
     blocks = blocks_of(d.folds)
     assert len(blocks) >= 3 and blocks[0][0] == 0 and blocks[-1][1] == len(log)
     plain = functools.cache(lambda spec: leave_one_block_out(log, spec, blocks))

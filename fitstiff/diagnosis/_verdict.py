@@ -14,6 +14,15 @@ from fitstiff.physics.terms import TERMS
 __all__ = ["cell", "region_records", "verdict"]
 
 
+#: said of an accepted effect when one log is diagnosed (blocks of its loops held out): the
+#: withheld benchmark's out-of-library sets diagnosed one log at a time name library effects
+#: that several logs together do not (docs/diagnosis_heldout.md, session of 2026-11-29 22:40)
+_ONE_LOG = ("one log ({log}): its blocks of loops confirm what is accepted within this log "
+            "only, and something particular to it (a tight spot in its stretch of the bore, "
+            "friction drifting over the run, a sensor's hysteresis) can pass for a library "
+            "effect; confirm it with a second log of other rates, pressures or positions")
+
+
 def cell(row) -> dict[str, object]:
     """One row of a :func:`~fitstiff.diagnosis.gap.region_table` as a JSON record."""
     return {"file": row["file"], "region": row["region"],
@@ -32,10 +41,13 @@ def region_records(table) -> list[dict[str, object]]:
                                    for _, row in table.iterrows()]
 
 
-def verdict(baseline, accepted, decided, gap, still, noise, described=()) -> list[str]:
+def verdict(baseline, accepted, decided, gap, still, noise, described=(), *,
+            one_log: str | None = None) -> list[str]:
     """The verdict's lines: whether the baseline converged, what the accepted effects
     explain (or that none passed), what stays above the noise floor (``still``: the cells
-    above it) and what of it a description follows (``described``)."""
+    above it) and what of it a description follows (``described``). ``one_log``: the name
+    of the log when there is only one (its blocks of loops held out): an accepted effect then
+    rests on that log alone, and the verdict says so."""
     before, after = gap["heldout_rms_N"], gap["final_heldout_rms_N"]
     lines = []
     if not gap["baseline_converged"]:
@@ -49,6 +61,8 @@ def verdict(baseline, accepted, decided, gap, still, noise, described=()) -> lis
         lines += [f"{e}: {decided[e].reading}" for e in accepted if decided[e].reading]
         lines += [f"{e} could also be something outside the library: {decided[e].lookalike}"
                   for e in accepted if decided[e].lookalike]
+        if one_log is not None:
+            lines.append(_ONE_LOG.format(log=one_log))
     lines += [f"{c.effect} is significant (p = {c.p_text}) but log {c.determined_by} alone "
               "determines it, so held-out data cannot confirm it: record a second log that "
               f"excites it ({TERMS[c.effect].excitation})"

@@ -235,8 +235,9 @@ def _diagnosis(st: Setting, s: Search, base: _Baseline, tables: _Tables, *, base
         folds=tuple(f.describe([log.name for log in problem.logs]) for f in st.folds),
         settings=_settings(st, structure),
         verdict=tuple(verdict(baseline, s.accepted, decided, gap, tables.still,
-                              st.noise_pooled,
-                              described)),
+                              st.noise_pooled, described,
+                              one_log=problem.logs[0].name if problem.n_logs == 1
+                              else None)),
         files=tuple(str(log.path) if log.path else log.name for log in problem.logs),
         timing_s=_timing(clock, st.spent),
         heldout={"before": base.heldout.residuals, "after": s.current.residuals})
