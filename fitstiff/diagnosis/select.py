@@ -29,8 +29,9 @@ part. Each fold carries its own fit (:class:`FoldFit`) from round to round: the 
 starts from :meth:`~fitstiff.diagnosis.supermodel.SuperProblem.start` on the fold's training
 samples alone; a candidate's refit starts from the fold's fit of the current model with the
 candidate's one-step values computed on the fold's training data (the score screen with the
-fold's weights; its joint step moves only what the fold's training solve frees); an accepted effect's fold fits become the next round's starts. The full-data
-fit only screens, breaks ties (BIC) and reports the parameters. A fold's solve is checked with
+fold's weights; its joint step moves only what the fold's training solve frees); an
+accepted effect's fold fits become the next round's starts. The full-data fit only
+screens, breaks ties (BIC) and reports the parameters. A fold's solve is checked with
 the tolerances of a cold fit. A left-out log's own nuisances (force offset, initial friction
 state) are fitted to it alone with the trained model held, and start from that log's own data;
 a held-out block that starts its log owns the log's initial friction state the same way (the
