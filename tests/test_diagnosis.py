@@ -737,3 +737,35 @@ def test_a_candidate_whose_column_is_not_finite_is_not_testable_and_the_screen_g
     with pytest.raises(FitstiffError, match=r"not finite \(Fc\)"):
         screen(sp, theta, hold, active=["chamber", "dahl"], candidates=["viscous"],
                noise=noise, weights=sp.entry_weights(), alpha=0.05, min_gain=0.05)
+
+
+def test_the_verdict_says_when_the_logs_do_not_tell_a_tie_apart():
+    """A held-out tie is broken by the fits to all the data; below a BIC gap of 6 the verdict
+    says the logs do not tell the two apart (withheld single/heat_transfer/8: leakage won
+    by 1.31 and was named for heat exchange), above it by how much the data favour it."""
+    import pandas as pd
+
+    from fitstiff.diagnosis._verdict import verdict
+    from fitstiff.diagnosis.result import Candidate
+
+    gap = {"heldout_rms_N": 0.288, "final_heldout_rms_N": 0.267, "baseline_converged": True}
+
+    def lines(bic_gap):
+        decided = {
+            "leakage": Candidate("leakage", 2078.0, 1, 0.0, True, accepted=True, shrink=0.86,
+                                 parameters={"leak_rate": {"value": 0.033, "unit": "1/s"}}),
+            "heat_transfer": Candidate("heat_transfer", -0.46, 1, 0.75, True,
+                                       tied_with="leakage", tie_bic_gap=bic_gap),
+            "viscous": Candidate("viscous", 1.4, 1, 0.12, True)}
+        return verdict("chamber+dahl", ["leakage"], decided, gap, pd.DataFrame(), 0.264)
+
+    said = [line for line in lines(1.31) if "heat_transfer" in line]
+    assert said == [
+        "leakage or heat_transfer: heat_transfer predicts the held-out data as well as "
+        "leakage, and all the data favour leakage by BIC 1.3 only (below 6): these logs do "
+        "not tell them apart, and leakage stands for either; `fitstiff plan` proposes runs "
+        "that do"]
+    said = [line for line in lines(44.7) if "heat_transfer" in line]
+    assert said == ["heat_transfer predicts the held-out data as well as leakage; all the "
+                    "data favour leakage (BIC +44.7)"]
+    assert [line for line in lines(math.nan) if "a fit did not converge" in line]

@@ -20,7 +20,7 @@ from fitstiff._testing.withheld import (EFFECTS, FAMILIES, LAWS, MISSING, OOL_VA
                                         OUT_OF_LIBRARY, make_dataset)
 
 __all__ = ["PAIRS", "dataset_ids", "run_dataset", "wilson", "named", "confusion", "score",
-           "plot_confusion", "describe"]
+           "undecided_tie", "plot_confusion", "describe"]
 
 #: the pairs of the ``pair`` family
 PAIRS = (("viscous", "dwell_stiction"), ("pressure_friction", "inertia"),
@@ -95,6 +95,10 @@ def run_dataset(dataset_id: str, rate_scale: float = 1.0, short: bool = False,
                     "after_N": c.heldout_rms_after_N, "shrink": c.shrink,
                     "accepted": c.accepted, "together": list(c.together), "why": c.why}
                    for c in d.candidates if c.heldout_rms_after_N is not None],
+        # held-out ties the fits to all the data broke (the accepted one, the loser, its
+        # BIC gap: below DECISIVE_BIC the verdict says the logs do not tell them apart)
+        "ties": [{"accepted": c.tied_with, "tied": c.effect, "bic_gap": c.tie_bic_gap}
+                 for c in d.candidates if c.tied_with and not c.accepted],
         "detectability": {k: dict(v) for k, v in d.detectability.items()
                           if k in truth["withheld"]},
         "heldout_rms_before_N": before, "heldout_rms_after_N": after, "noise_N": noise,
@@ -216,6 +220,11 @@ def score(records: Mapping[str, Mapping[str, object]]) -> dict[str, object]:
     out["single"] = {"top1": _rate(top1, len(single)), "exact": _rate(exact, len(single)),
                      "found": _rate(sum(r["withheld"][0] in r["accepted"] for r in single),
                                     len(single))}
+    # wrong names: an accepted effect not withheld; undecided when each such effect won a
+    # held-out tie with a withheld one by less than DECISIVE_BIC (the verdict says so)
+    wrong = [r for r in single if set(r["accepted"]) - set(r["withheld"])]
+    out["single"]["wrong"] = _rate(len(wrong), len(single))
+    out["single"]["wrong_undecided_tie"] = sum(undecided_tie(r) for r in wrong)
     per_effect = {}
     for e in EFFECTS:
         rs_ = [r for r in single if r["withheld"][0] == e]
@@ -277,6 +286,21 @@ def score(records: Mapping[str, Mapping[str, object]]) -> dict[str, object]:
     rows, cols, counts = confusion(recs)
     out["confusion"] = {"rows": rows, "cols": cols, "counts": counts.tolist()}
     return out
+
+
+def undecided_tie(record: Mapping[str, object]) -> bool:
+    """Whether every accepted effect that was not withheld won a held-out tie with a withheld
+    one by a BIC gap below :data:`~fitstiff.diagnosis._choice.DECISIVE_BIC`: the diagnosis
+    named it and said the logs do not tell it from the withheld one (records without
+    ``ties``, kept before 2026-11-30, have none)."""
+    from fitstiff.diagnosis._choice import DECISIVE_BIC
+
+    extra = set(record["accepted"]) - set(record["withheld"])
+    ties = record.get("ties", [])
+    return bool(extra) and all(
+        any(t["accepted"] == e and t["tied"] in record["withheld"]
+            and not (t["bic_gap"] is not None and t["bic_gap"] >= DECISIVE_BIC) for t in ties)
+        for e in extra)
 
 
 def described(record: Mapping[str, object]) -> list[Mapping[str, object]]:

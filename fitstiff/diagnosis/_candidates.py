@@ -24,7 +24,7 @@ _REGIONS = ("presliding", "sliding", "dwell", "standstill", "stroke_end")
 
 
 def refitted(sp: SuperProblem, s: Score, t: Tried, *, current: HeldOut, noise, masks,
-             round_: int, tied_with: str) -> Candidate:
+             round_: int) -> Candidate:
     """The record of a candidate refitted in round ``round_`` (``t``: its refit and the rule's
     verdict; ``current``: the held-out figure of the model it was refitted on)."""
     return Candidate(
@@ -35,11 +35,10 @@ def refitted(sp: SuperProblem, s: Score, t: Tried, *, current: HeldOut, noise, m
         converged=t.heldout.converged,
         regions_improved=improved_regions(sp, noise, masks, current, t.heldout),
         parameters=parameter_entries(sp, s.one_step, "one_step"), round=round_,
-        why=t.why, tied_with=tied_with, determined_by=t.determined_by)
+        why=t.why, determined_by=t.determined_by)
 
 
-def screened(sp: SuperProblem, s: Score, *, round_: int, alpha: float, m: int,
-             tied_with: str) -> Candidate:
+def screened(sp: SuperProblem, s: Score, *, round_: int, alpha: float, m: int) -> Candidate:
     """The record of a candidate screened in round ``round_`` and not refitted, with why
     (``m`` candidates: the screen's Bonferroni level ``alpha / m``)."""
     why = (f"not testable: {s.reason}" if s.reason else
@@ -51,8 +50,7 @@ def screened(sp: SuperProblem, s: Score, *, round_: int, alpha: float, m: int,
         effect=s.effect, score=s.statistic, dof=s.dof, p_value=s.p_value,
         log_p_value=s.log_p,
         testable=s.testable, round=round_, why=why,
-        parameters=parameter_entries(sp, s.one_step, "one_step"),
-        tied_with=tied_with)
+        parameters=parameter_entries(sp, s.one_step, "one_step"))
 
 
 def parameter_entries(sp: SuperProblem, values, kind: str) -> dict[str, dict[str, object]]:

@@ -175,17 +175,20 @@ def _refine_shapes(st: Setting, s: Search, tried: dict[str, Tried],
 
 def _record(st: Setting, s: Search, tried: dict[str, Tried], round_: int) -> None:
     """Every screened candidate's record of this round; a tie of an earlier round stays on
-    the record (the loser is screened again)."""
-    tied = {e: c.tied_with for e, c in s.decided.items() if c.tied_with}
+    the record, with why it lost and its BIC gap (the loser is screened again, and once the
+    effect it tied with is in the model it explains nothing more: that is no reason)."""
+    tied = {e: c for e, c in s.decided.items() if c.tied_with}
     for score in s.scores:
         if score.effect in tried:
-            s.decided[score.effect] = refitted(
-                st.sp, score, tried[score.effect], current=s.current, noise=st.noise,
-                masks=st.masks, round_=round_, tied_with=tied.get(score.effect, ""))
+            record = refitted(st.sp, score, tried[score.effect], current=s.current,
+                              noise=st.noise, masks=st.masks, round_=round_)
         else:
-            s.decided[score.effect] = screened(
-                st.sp, score, round_=round_, alpha=st.alpha, m=len(st.names),
-                tied_with=tied.get(score.effect, ""))
+            record = screened(st.sp, score, round_=round_, alpha=st.alpha, m=len(st.names))
+        tie = tied.get(score.effect)
+        if tie is not None:
+            record = dataclasses.replace(record, tied_with=tie.tied_with,
+                                         tie_bic_gap=tie.tie_bic_gap, why=tie.why)
+        s.decided[score.effect] = record
 
 
 def _accept_one(st: Setting, s: Search, passing: list[Tried]) -> _Step:
@@ -193,9 +196,11 @@ def _accept_one(st: Setting, s: Search, passing: list[Tried]) -> _Step:
     full-data fit goes on from its fit, and each tied candidate's record says why it lost."""
     choice = choose(st.sp, passing, s.theta, s.hold, s.active, st.weights, st.noise_pooled)
     s.theta, s.hold = choice.theta, choice.hold
-    for effect, why in choice.losers.items():
-        s.decided[effect] = dataclasses.replace(s.decided[effect], why=why,
-                                                tied_with=choice.chosen.effect)
+    for effect, lost in choice.losers.items():
+        rec = s.decided[effect]
+        s.decided[effect] = dataclasses.replace(rec, why=f"round {rec.round}: {lost.why}",
+                                                tied_with=choice.chosen.effect,
+                                                tie_bic_gap=lost.bic_gap)
     return _Step([choice.chosen.effect], choice.chosen.heldout)
 
 

@@ -8,6 +8,7 @@ import math
 
 import numpy as np
 
+from fitstiff.diagnosis._choice import DECISIVE_BIC
 from fitstiff.diagnosis.gap import pooled_excess
 from fitstiff.physics.terms import TERMS
 
@@ -61,6 +62,8 @@ def verdict(baseline, accepted, decided, gap, still, noise, described=(), *,
         lines += [f"{e}: {decided[e].reading}" for e in accepted if decided[e].reading]
         lines += [f"{e} could also be something outside the library: {decided[e].lookalike}"
                   for e in accepted if decided[e].lookalike]
+        lines += [_tie(c) for c in decided.values()
+                  if c.tied_with in accepted and not c.accepted]
         if one_log is not None:
             lines.append(_ONE_LOG.format(log=one_log))
     lines += [f"{c.effect} is significant (p = {c.p_text}) but log {c.determined_by} alone "
@@ -83,6 +86,19 @@ def verdict(baseline, accepted, decided, gap, still, noise, described=(), *,
             + ": no library effect has that shape (see unexplained_structure for what "
             "usually does and what to record)")
     return lines
+
+
+def _tie(c) -> str:
+    """The verdict's line of a candidate that tied on held-out data with an accepted one."""
+    gap = c.tie_bic_gap
+    head = f"{c.effect} predicts the held-out data as well as {c.tied_with}"
+    if gap is not None and math.isfinite(gap) and gap >= DECISIVE_BIC:
+        return f"{head}; all the data favour {c.tied_with} (BIC +{gap:.3g})"
+    by = (f"by BIC {gap:.2g} only (below {DECISIVE_BIC:g})"
+          if gap is not None and math.isfinite(gap) else "not at all (a fit did not converge)")
+    return (f"{c.tied_with} or {c.effect}: {head}, and all the data favour {c.tied_with} "
+            f"{by}: these logs do not tell them apart, and {c.tied_with} stands for either; "
+            "`fitstiff plan` proposes runs that do")
 
 
 def _explained(accepted, decided, before: float, after: float, noise: float) -> str:

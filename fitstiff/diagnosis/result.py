@@ -50,6 +50,10 @@ class Candidate:
     #: the accepted effect it tied with on held-out data (told apart by the fits to all the
     #: data only, :mod:`fitstiff.planning` proposes the experiment that separates them)
     tied_with: str = ""
+    #: how much larger its BIC on all the data is than that of ``tied_with`` (the tie's only
+    #: judge): below :data:`~fitstiff.diagnosis._choice.DECISIVE_BIC` (6) the logs do not
+    #: tell the two apart and the verdict says so; None without a tie
+    tie_bic_gap: float | None = None
     #: the log that alone determines it, where its held-out refit found one: every fold that
     #: trains on that log finds the effect, the fold that leaves it out does not, so the
     #: held-out rule cannot confirm it (:func:`fitstiff.diagnosis._refit.lone_log`)
