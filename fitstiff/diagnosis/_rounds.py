@@ -186,8 +186,11 @@ def _record(st: Setting, s: Search, tried: dict[str, Tried], round_: int) -> Non
             record = screened(st.sp, score, round_=round_, alpha=st.alpha, m=len(st.names))
         tie = tied.get(score.effect)
         if tie is not None:
+            # refitted again, it keeps that refit's own verdict beside the tie's
+            why = (f"{tie.why}; round {round_}: {record.why}"
+                   if score.effect in tried and record.why else tie.why)
             record = dataclasses.replace(record, tied_with=tie.tied_with,
-                                         tie_bic_gap=tie.tie_bic_gap, why=tie.why)
+                                         tie_bic_gap=tie.tie_bic_gap, why=why)
         s.decided[score.effect] = record
 
 
