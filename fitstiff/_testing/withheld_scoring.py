@@ -293,13 +293,13 @@ def undecided_tie(record: Mapping[str, object]) -> bool:
     one by a BIC gap below :data:`~fitstiff.diagnosis._choice.DECISIVE_BIC`: the diagnosis
     named it and said the logs do not tell it from the withheld one (records without
     ``ties``, kept before 2026-11-30, have none)."""
-    from fitstiff.diagnosis._choice import DECISIVE_BIC
+    from fitstiff.diagnosis._choice import tie_decided
 
     extra = set(record["accepted"]) - set(record["withheld"])
     ties = record.get("ties", [])
     return bool(extra) and all(
         any(t["accepted"] == e and t["tied"] in record["withheld"]
-            and not (t["bic_gap"] is not None and t["bic_gap"] >= DECISIVE_BIC) for t in ties)
+            and not tie_decided(t["bic_gap"]) for t in ties)
         for e in extra)
 
 

@@ -20,7 +20,7 @@ from fitstiff.diagnosis.supermodel import SuperProblem
 from fitstiff.inference.comparison import TIE
 
 __all__ = ["MAX_REFITS", "DECISIVE_BIC", "Choice", "FullFit", "Loser", "Pair", "choose",
-           "full_fit", "pair", "partners", "tie_order"]
+           "full_fit", "pair", "partners", "tie_decided", "tie_order"]
 
 #: candidates refitted per batch of a round, strongest score first (the next batch only when
 #: none of the previous passed); a pair is sought among this many strongest refitted ones
@@ -34,6 +34,12 @@ _TIE = TIE
 #: says the logs do not tell the two apart. On the withheld benchmark's
 #: ``single/heat_transfer/8`` leakage won the tie by 1.3 and was named for heat exchange.
 DECISIVE_BIC = 6.0
+
+
+def tie_decided(bic_gap: float | None) -> bool:
+    """Whether a held-out tie's BIC gap on all the data tells the two apart (a gap missing
+    or not finite, where a fit did not converge, tells nothing)."""
+    return bic_gap is not None and math.isfinite(bic_gap) and bic_gap >= DECISIVE_BIC
 
 
 class FullFit(NamedTuple):
@@ -116,7 +122,7 @@ def choose(sp: SuperProblem, passing: Sequence[Tried], theta, hold, active, weig
             losers[v.effect] = Loser(f"{head}; the fits to all the data do not tell them "
                                      "apart (one did not converge)", math.nan)
             continue
-        told = ("" if gap >= DECISIVE_BIC else
+        told = ("" if tie_decided(gap) else
                 f" (below {DECISIVE_BIC:g}: the logs do not tell them apart)")
         losers[v.effect] = Loser(f"{head} but all the data worse: BIC +{gap:.3g}{told}", gap)
     return Choice(chosen, fits[chosen.effect].theta, holds[chosen.effect], losers)

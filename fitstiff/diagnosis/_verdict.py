@@ -8,7 +8,7 @@ import math
 
 import numpy as np
 
-from fitstiff.diagnosis._choice import DECISIVE_BIC
+from fitstiff.diagnosis._choice import DECISIVE_BIC, tie_decided
 from fitstiff.diagnosis.gap import pooled_excess
 from fitstiff.physics.terms import TERMS
 
@@ -92,7 +92,7 @@ def _tie(c) -> str:
     """The verdict's line of a candidate that tied on held-out data with an accepted one."""
     gap = c.tie_bic_gap
     head = f"{c.effect} predicts the held-out data as well as {c.tied_with}"
-    if gap is not None and math.isfinite(gap) and gap >= DECISIVE_BIC:
+    if tie_decided(gap):
         return f"{head}; all the data favour {c.tied_with} (BIC +{gap:.3g})"
     by = (f"by BIC {gap:.2g} only (below {DECISIVE_BIC:g})"
           if gap is not None and math.isfinite(gap) else "not at all (a fit did not converge)")
