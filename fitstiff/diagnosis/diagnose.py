@@ -272,7 +272,8 @@ def _timing(clock: dict[str, float], spent: Counter) -> dict[str, float]:
             "structure": clock["structure"] - clock["select"],
             "total": clock["end"] - clock["start"],
             # parts: the baseline's held-out folds (in "baseline"), the screens on all
-            # data and the candidates' held-out refits with their fold starts (in
-            # "select"); compilation happens inside whichever part first needs it
+            # data, the candidates' held-out refits with their fold starts and the
+            # descriptions they are held against (in "select"); compilation happens
+            # inside whichever part first needs it
             **{name: float(spent[name])
-               for name in ("baseline_folds", "screens", "refits")}}
+               for name in ("baseline_folds", "screens", "refits", "rivals")}}
