@@ -35,7 +35,7 @@ def refitted(sp: SuperProblem, s: Score, t: Tried, *, current: HeldOut, noise, m
         converged=t.heldout.converged,
         regions_improved=improved_regions(sp, noise, masks, current, t.heldout),
         parameters=parameter_entries(sp, s.one_step, "one_step"), round=round_,
-        why=t.why, determined_by=t.determined_by)
+        why=t.why, determined_by=t.determined_by, outdone_by=t.outdone_by)
 
 
 def screened(sp: SuperProblem, s: Score, *, round_: int, alpha: float, m: int) -> Candidate:

@@ -64,6 +64,8 @@ class Tried:
     starts: tuple[FoldFit, ...]
     #: the log that alone determines the effect, where :func:`lone_log` found one
     determined_by: str = ""
+    #: the description that explained the gap better (:class:`~fitstiff.diagnosis._rounds.Rival`)
+    outdone_by: str = ""
 
     @property
     def effect(self) -> str:

@@ -50,7 +50,8 @@ from fitstiff.diagnosis.structure import Structure, describe_structure
 from fitstiff.diagnosis.supermodel import SuperProblem
 from fitstiff.signal.noise import NoiseFloor
 
-__all__ = ["MAX_ACCEPT", "Setting", "Search", "Rival", "phase", "run_rounds", "prune_accepted"]
+__all__ = ["MAX_ACCEPT", "Setting", "Search", "Rival", "outdone", "phase", "run_rounds",
+           "prune_accepted"]
 
 #: most rounds of the search (each accepts one effect, or a pair)
 MAX_ACCEPT = 4
@@ -136,16 +137,24 @@ class Rival:
                                        max_accept=1)
         return next((d for d in found if d.accepted), None)
 
-    def outdoes(self, rms_N: float) -> str:
-        """Why a candidate whose held-out RMS is ``rms_N`` is refused, or "" when the
-        description does not do better by ``MIN_GAIN`` of the noise floor."""
-        best = self.best
-        if best is None or best.heldout_rms_after_N >= rms_N - MIN_GAIN * self._st.noise_pooled:
-            return ""
-        return (f"a description that names no physics explains the gap better held out "
-                f"({best.form} in {best.variable}: {best.heldout_rms_after_N:.3g} N against "
-                f"{rms_N:.3g} N; an effect must come within {MIN_GAIN:.0%} of the noise "
-                f"floor of it): the gap follows a shape this effect does not have")
+    def outdoes(self, rms_N: float) -> tuple[str, str]:
+        """The description (``"<form> in <variable>"``) and why a candidate whose held-out
+        RMS is ``rms_N`` is refused for it, or ``("", "")`` when the description does not do
+        better by ``MIN_GAIN`` of the noise floor."""
+        return outdone(self.best, rms_N, self._st.noise_pooled)
+
+
+def outdone(best: Structure | None, rms_N: float, noise_N: float) -> tuple[str, str]:
+    """:meth:`Rival.outdoes` for the description ``best`` (None: no description passed) and
+    the pooled noise floor ``noise_N``."""
+    if best is None or best.heldout_rms_after_N >= rms_N - MIN_GAIN * noise_N:
+        return "", ""
+    name = f"{best.form} in {best.variable}"
+    return name, (f"a description that names no physics explains the gap better held out "
+                  f"({name}: {best.heldout_rms_after_N:.3g} N against {rms_N:.3g} N; an "
+                  f"effect must come within {MIN_GAIN:.0%} of the noise floor, "
+                  f"{MIN_GAIN * noise_N:.2g} N, of it): the gap follows a shape this effect "
+                  "does not have")
 
 
 def _round(st: Setting, s: Search, round_: int) -> bool:
@@ -197,9 +206,9 @@ def _refits(st: Setting, s: Search, starts: FoldStarts, rival: Rival) -> dict[st
                                             noise=st.noise_pooled, min_shrink=st.min_shrink)
             _refine_shapes(st, s, tried, names)
         for e in names:
-            why = rival.outdoes(tried[e].heldout.rms_N) if tried[e].passes else ""
-            if why:
-                tried[e] = dataclasses.replace(tried[e], passes=False, why=why)
+            by, why = rival.outdoes(tried[e].heldout.rms_N) if tried[e].passes else ("", "")
+            if by:
+                tried[e] = dataclasses.replace(tried[e], passes=False, why=why, outdone_by=by)
     return tried
 
 
@@ -270,12 +279,13 @@ def _accept_pair(st: Setting, s: Search, tried: dict[str, Tried],
                      current=s.current, noise=st.noise_pooled, min_shrink=st.min_shrink)
     if found is None:
         return None
-    why = rival.outdoes(found.heldout.rms_N)
-    if why:
+    by, why = rival.outdoes(found.heldout.rms_N)
+    if by:
         for effect in found.effects:
             rec = s.decided[effect]
             s.decided[effect] = dataclasses.replace(
-                rec, why=f"{rec.why}; with {' and '.join(found.effects)} together: {why}")
+                rec, outdone_by=by,
+                why=f"{rec.why}; with {' and '.join(found.effects)} together: {why}")
         return None
     free = st.sp.fitting(s.active, found.effects)
     s.theta, _, _, _ = st.sp.solve(found.theta, found.hold, free, st.sp.nuisance_mask(),

@@ -70,6 +70,10 @@ def verdict(baseline, accepted, decided, gap, still, noise, described=(), *,
               "determines it, so held-out data cannot confirm it: record a second log that "
               f"excites it ({TERMS[c.effect].excitation})"
               for c in decided.values() if c.determined_by and not c.accepted]
+    lines += [f"{c.effect} would pass the rule, but a description that names no physics "
+              f"({c.outdone_by}) explains the gap better held out: the gap has a shape "
+              f"{c.effect} does not have, so it is not named"
+              for c in decided.values() if c.outdone_by and not c.accepted]
     if still.empty:
         lines.append("nothing stays above the noise floor")
     else:

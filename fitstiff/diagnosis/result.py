@@ -58,6 +58,11 @@ class Candidate:
     #: trains on that log finds the effect, the fold that leaves it out does not, so the
     #: held-out rule cannot confirm it (:func:`fitstiff.diagnosis._refit.lone_log`)
     determined_by: str = ""
+    #: the description of the held-out residual (``"<form> in <variable>"``) that explained
+    #: the gap better than it, by more than ``MIN_GAIN`` of the noise floor, when it passed
+    #: the rule otherwise and was refused for it (:class:`~fitstiff.diagnosis._rounds.Rival`);
+    #: else empty
+    outdone_by: str = ""
 
     @property
     def p_text(self) -> str:
