@@ -93,7 +93,8 @@ def run_dataset(dataset_id: str, rate_scale: float = 1.0, short: bool = False,
         # to calibrate its thresholds on the stored records, and why it was not accepted
         "refits": [{"effect": c.effect, "round": c.round, "before_N": c.heldout_rms_before_N,
                     "after_N": c.heldout_rms_after_N, "shrink": c.shrink,
-                    "accepted": c.accepted, "together": list(c.together), "why": c.why}
+                    "accepted": c.accepted, "together": list(c.together), "why": c.why,
+                    "outdone_by": c.outdone_by}
                    for c in d.candidates if c.heldout_rms_after_N is not None],
         # held-out ties the fits to all the data broke (the accepted one, the loser, its
         # BIC gap: below DECISIVE_BIC the verdict says the logs do not tell them apart)
