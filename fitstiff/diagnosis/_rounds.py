@@ -46,7 +46,7 @@ from fitstiff.diagnosis.result import Candidate
 from fitstiff.diagnosis.screen import Score, screen
 from fitstiff.diagnosis.select import (MIN_GAIN, Fold, FoldFit, HeldOut, Job,
                                       held_out_batch)
-from fitstiff.diagnosis.structure import Structure, describe_structure
+from fitstiff.diagnosis.structure import Passing, Structure, passing_descriptions
 from fitstiff.diagnosis.supermodel import SuperProblem
 from fitstiff.signal.noise import NoiseFloor
 
@@ -120,28 +120,30 @@ def run_rounds(st: Setting, s: Search) -> None:
 
 
 class Rival:
-    """The best accepted description of the current model's held-out residual
-    (:func:`~fitstiff.diagnosis.structure.describe_structure`, one round of it), worked out
-    when a round first needs it: a candidate that leaves more than it (by ``MIN_GAIN`` of the
-    noise floor) is refused (the module docstring)."""
+    """The descriptions of the current model's held-out residual that pass the rule
+    (:func:`~fitstiff.diagnosis.structure.passing_descriptions`, each log held out as the
+    effects' refits hold it out; with one log, blocks), worked out when a round first needs
+    them: a candidate that leaves more than the best of them that does not have its own
+    shape (by ``MIN_GAIN`` of the noise floor) is refused (the module docstring)."""
 
     def __init__(self, st: Setting, current: HeldOut):
         self._st, self._current = st, current
 
     @functools.cached_property
-    def best(self) -> Structure | None:
+    def passing(self) -> list[Passing]:
         st = self._st
+        problem = st.sp.problem
         with phase(st.spent, "rivals"):
-            found = describe_structure(st.sp.problem.logs, st.sp.problem.segmentations,
-                                       self._current.residuals, st.masks, st.noise_pooled,
-                                       max_accept=1)
-        return next((d for d in found if d.accepted), None)
+            return passing_descriptions(
+                problem.logs, problem.segmentations, self._current.residuals, st.masks,
+                st.noise_pooled, hold_out="logs" if problem.n_logs > 1 else "blocks")
 
-    def outdoes(self, rms_N: float) -> tuple[str, str]:
-        """The description (``"<form> in <variable>"``) and why a candidate whose held-out
-        RMS is ``rms_N`` is refused for it, or ``("", "")`` when the description does not do
-        better by ``MIN_GAIN`` of the noise floor."""
-        return outdone(self.best, rms_N, self._st.noise_pooled)
+    def outdoes(self, effects: Sequence[str], rms_N: float) -> tuple[str, str]:
+        """The description (``"<form> in <variable>"``) and why ``effects`` (one, or a pair)
+        whose held-out RMS is ``rms_N`` are refused for it, or ``("", "")``."""
+        others = [p.structure for p in self.passing
+                  if not set(effects) & set(p.lookalike_of)]
+        return outdone(others[0] if others else None, rms_N, self._st.noise_pooled)
 
 
 def outdone(best: Structure | None, rms_N: float, noise_N: float) -> tuple[str, str]:
@@ -206,7 +208,8 @@ def _refits(st: Setting, s: Search, starts: FoldStarts, rival: Rival) -> dict[st
                                             noise=st.noise_pooled, min_shrink=st.min_shrink)
             _refine_shapes(st, s, tried, names)
         for e in names:
-            by, why = rival.outdoes(tried[e].heldout.rms_N) if tried[e].passes else ("", "")
+            by, why = (rival.outdoes([e], tried[e].heldout.rms_N) if tried[e].passes
+                       else ("", ""))
             if by:
                 tried[e] = dataclasses.replace(tried[e], passes=False, why=why, outdone_by=by)
     return tried
@@ -279,7 +282,7 @@ def _accept_pair(st: Setting, s: Search, tried: dict[str, Tried],
                      current=s.current, noise=st.noise_pooled, min_shrink=st.min_shrink)
     if found is None:
         return None
-    by, why = rival.outdoes(found.heldout.rms_N)
+    by, why = rival.outdoes(found.effects, found.heldout.rms_N)
     if by:
         for effect in found.effects:
             rec = s.decided[effect]

@@ -31,6 +31,10 @@ already owns).
 out from itself too: each log's samples are cut into ``BLOCKS`` consecutive blocks, block
 ``b`` belongs to fold ``b mod FOLDS``, the description is fitted on the other folds (its
 knots, penalty and period included) and predicts the fold. No physics model is refitted.
+With ``hold_out="logs"`` each log is a fold instead (what a library effect's refit faces
+when the diagnosis leaves one log out: :class:`~fitstiff.diagnosis._rounds.Rival` holds a
+passing effect against such a description); a log's own columns (its level, its phase)
+then predict nothing of it.
 
 **The rule** (the library's, :mod:`fitstiff.diagnosis.select`, on the description): the
 gap must exist (held-out RMS above the pooled noise floor); the description's held-out
@@ -77,8 +81,9 @@ from fitstiff.inference.comparison import TIE
 from fitstiff.io.log import Log
 from fitstiff.segments.segmentation import Segmentation
 
-__all__ = ["VARIABLES", "LOOKALIKES", "Described", "Structure", "accepted_descriptions",
-           "describe_structure", "structure_variables",
+__all__ = ["VARIABLES", "LOOKALIKES", "Described", "Passing", "Structure",
+           "accepted_descriptions", "describe_structure", "passing_descriptions",
+           "structure_variables",
            "STRUCTURE_ALPHA", "STRUCTURE_MIN_SHRINK"]
 
 #: family-wise level of the descriptions' test in each round
@@ -116,7 +121,8 @@ def describe_structure(logs: Sequence[Log], segmentations: Sequence[Segmentation
                        noise_N: float, *, alpha: float = STRUCTURE_ALPHA,
                        min_shrink: float = STRUCTURE_MIN_SHRINK,
                        max_accept: int = MAX_ACCEPT,
-                       library: Mapping[str, str] | None = None) -> tuple[Structure, ...]:
+                       library: Mapping[str, str] | None = None,
+                       hold_out: str = "blocks") -> tuple[Structure, ...]:
     """Describe what the held-out residual follows (see the module docstring).
 
     Args:
@@ -126,13 +132,16 @@ def describe_structure(logs: Sequence[Log], segmentations: Sequence[Segmentation
         noise_N: the pooled noise floor (N).
         library: the library effects tried and not accepted, with why (a description with
             one's shape says so, :data:`LOOKALIKES`).
+        hold_out: ``"blocks"`` (folds of blocks within each log) or ``"logs"`` (each log a
+            fold; two logs or more).
 
     Returns:
         The accepted descriptions in order, then the best description of every other
         variable tried in the last round (not accepted, with why), best first.
     """
     found = _describe(logs, segmentations, residuals, masks, noise_N, alpha=alpha,
-                      min_shrink=min_shrink, max_accept=max_accept, library=library)
+                      min_shrink=min_shrink, max_accept=max_accept, library=library,
+                      hold_out=hold_out)
     return tuple(d.structure for d in found.accepted) + tuple(found.rest)
 
 
@@ -147,8 +156,8 @@ class _Samples(NamedTuple):
     """All logs' samples one after another: the held-out ``residual`` (0 where a sample does
     not count), the ``weight`` of each and whether it counts, its log, its block
     (:func:`_blocks`; -1 where it does not count) and fold (-1 likewise), the number of
-    blocks, the candidate descriptions, and whether the positions are ``relative`` to the
-    start (a start position not known)."""
+    blocks and of folds, the candidate descriptions, and whether the positions are
+    ``relative`` to the start (a start position not known)."""
 
     residual: np.ndarray
     weight: np.ndarray
@@ -157,6 +166,7 @@ class _Samples(NamedTuple):
     block: np.ndarray
     fold: np.ndarray
     n_blocks: int
+    n_folds: int
     candidates: list[Candidate]
     relative: bool
 
@@ -189,12 +199,12 @@ class _Outcome(NamedTuple):
 
 def _describe(logs, segmentations, residuals, masks, noise_N, *,
               alpha: float = STRUCTURE_ALPHA, min_shrink: float = STRUCTURE_MIN_SHRINK,
-              max_accept: int = MAX_ACCEPT, library: Mapping[str, str] | None = None
-              ) -> _Descriptions:
+              max_accept: int = MAX_ACCEPT, library: Mapping[str, str] | None = None,
+              hold_out: str = "blocks") -> _Descriptions:
     """The rounds: each accepts the best description that passes the rule and takes its
     held-out prediction off the residual, until none passes, no gap is left or
     ``max_accept`` are accepted."""
-    data = _samples(logs, segmentations, residuals, masks)
+    data = _samples(logs, segmentations, residuals, masks, hold_out)
     if not data.candidates or data.n_blocks < 4 or not data.counted.any():
         return _Descriptions([], [])
     designs = [Design(c, data.log_id, data.weight) for c in data.candidates]
@@ -223,8 +233,12 @@ def _describe(logs, segmentations, residuals, masks, noise_N, *,
     return _Descriptions(accepted, last)
 
 
-def _samples(logs, segmentations, residuals, masks) -> _Samples:
-    """The logs' samples, variables and candidate descriptions, all logs concatenated."""
+def _samples(logs, segmentations, residuals, masks, hold_out: str = "blocks") -> _Samples:
+    """The logs' samples, variables and candidate descriptions, all logs concatenated; the
+    folds are blocks (``hold_out="blocks"``) or logs (``"logs"``)."""
+    if hold_out not in ("blocks", "logs") or hold_out == "logs" and len(logs) < 2:
+        raise ValueError(f"hold_out={hold_out!r}: give 'blocks', or 'logs' with two logs or "
+                         f"more ({len(logs)} given)")
     r_logs = [np.asarray(r, float) for r in residuals]
     per_log = [structure_variables(log, seg, np.asarray(log.force) + r)
                for log, seg, r in zip(logs, segmentations, r_logs)]
@@ -233,9 +247,11 @@ def _samples(logs, segmentations, residuals, masks) -> _Samples:
     r = np.concatenate(r_logs)
     r = np.where(weight > 0, r, 0.0)
     block = _blocks(log_id, weight)
+    fold = np.where(block < 0, -1, block % FOLDS if hold_out == "blocks" else log_id)
     return _Samples(residual=r, weight=weight, counted=weight > 0, log_id=log_id,
-                    block=block, fold=np.where(block >= 0, block % FOLDS, -1),
-                    n_blocks=int(block.max()) + 1, candidates=candidates(per_log, log_id),
+                    block=block, fold=fold, n_blocks=int(block.max()) + 1,
+                    n_folds=FOLDS if hold_out == "blocks" else len(logs),
+                    candidates=candidates(per_log, log_id),
                     relative=any(log.rig.start_position is None for log in logs))
 
 
@@ -244,12 +260,7 @@ def _round(data: _Samples, designs: Sequence[Design], r: np.ndarray, before: flo
     """Try every description on the residual ``r`` (held-out RMS ``before``) and accept the
     best that passes the rule (the module docstring), with the variables it is confounded
     with."""
-    tried = [_trial(design, r, before, data) for design in designs]
-    t_needed = max_t_threshold(np.array([x.gains for x in tried]), rule.alpha)
-    shrinks = {id(x): (x.before - x.after) / (x.before - rule.noise) for x in tried}
-    passing = [x for x in tried
-               if x.t > t_needed and x.before - x.after >= MIN_GAIN * rule.noise
-               and shrinks[id(x)] >= rule.min_shrink]
+    tried, t_needed, shrinks, passing = _tried(data, designs, r, before, rule)
     band = TIE * rule.noise
     best_by_var = _best_per_variable(tried, band)
     if not passing:
@@ -287,12 +298,58 @@ def _round(data: _Samples, designs: Sequence[Design], r: np.ndarray, before: flo
     return _Outcome(Described(structure, chosen.shown, chosen.cand.sign, r, chosen.pred), [])
 
 
+def _tried(data: _Samples, designs: Sequence[Design], r: np.ndarray, before: float,
+           rule: _Rule) -> tuple[list[Trial], float, dict[int, float], list[Trial]]:
+    """Every description tried on ``r``, the t its gain must exceed, each one's shrink (by
+    ``id``) and those that pass the rule."""
+    tried = [_trial(design, r, before, data) for design in designs]
+    t_needed = max_t_threshold(np.array([x.gains for x in tried]), rule.alpha)
+    shrinks = {id(x): (x.before - x.after) / (x.before - rule.noise) for x in tried}
+    passing = [x for x in tried
+               if x.t > t_needed and x.before - x.after >= MIN_GAIN * rule.noise
+               and shrinks[id(x)] >= rule.min_shrink]
+    return tried, t_needed, shrinks, passing
+
+
+class Passing(NamedTuple):
+    """A description that passes the rule (:func:`passing_descriptions`) and the library
+    effects whose shape it has (:data:`LOOKALIKES`)."""
+
+    structure: Structure
+    lookalike_of: tuple[str, ...]
+
+
+def passing_descriptions(logs: Sequence[Log], segmentations: Sequence[Segmentation],
+                         residuals: Sequence[np.ndarray], masks: Sequence[np.ndarray],
+                         noise_N: float, *, alpha: float = STRUCTURE_ALPHA,
+                         min_shrink: float = STRUCTURE_MIN_SHRINK,
+                         hold_out: str = "blocks") -> list[Passing]:
+    """One round of :func:`describe_structure`'s rule on the residual, without accepting:
+    per variable, its best description that passes, lowest held-out RMS first (the same
+    arguments). What a library effect is held against
+    (:class:`~fitstiff.diagnosis._rounds.Rival`)."""
+    data = _samples(logs, segmentations, residuals, masks, hold_out)
+    if not data.candidates or data.n_blocks < 4 or not data.counted.any():
+        return []
+    r = data.residual
+    before = math.sqrt(float(np.sum(data.weight * r**2) / data.weight.sum()))
+    if before <= noise_N:
+        return []
+    designs = [Design(c, data.log_id, data.weight) for c in data.candidates]
+    rule = _Rule(noise_N, alpha, min_shrink, {})
+    _, t_needed, _, passing = _tried(data, designs, r, before, rule)
+    best = sorted(_best_per_variable(passing, TIE * noise_N), key=lambda x: x.after)
+    return [Passing(record(x, data.relative, noise_N, accepted=True, round_=1,
+                           t_needed=t_needed),
+                    LOOKALIKES.get((x.cand.variable, x.cand.signed), ())) for x in best]
+
+
 def _trial(design: Design, r: np.ndarray, before: float, data: _Samples) -> Trial:
     """One description tried on the residual ``r``: held out from itself (fitted on the
     other folds, predicting each fold), the t statistic of its held-out gain over the
     blocks, and its fit to all counted samples."""
     pred = np.zeros_like(r)
-    for f in range(FOLDS):
+    for f in range(data.n_folds):
         test = data.fold == f
         pred[test] = fit_predict(design, r, (data.fold >= 0) & ~test, data.weight).pred[test]
     counted = data.counted
