@@ -767,6 +767,24 @@ def test_an_effect_that_a_description_outdoes_is_refused_and_the_verdict_says_wh
     assert outdone(described(0.130), 0.135, 0.129) == ("", "")     # force_drift/8 stands
     assert outdone(None, 0.413, noise) == ("", "")                # nothing described
 
+    # a description with the candidate's own shape is no rival of it (the real O-ring logs:
+    # a transition scaled by the pressure, each log held out, left 0.946 N against pressure
+    # friction's 1.09 N; it is pressure friction with a freer shape)
+    from types import SimpleNamespace
+
+    from fitstiff.diagnosis._rounds import Rival
+    from fitstiff.diagnosis.structure import Passing
+
+    rival = Rival(SimpleNamespace(noise_pooled=0.0804), None)
+    rival.__dict__["passing"] = [
+        Passing(Structure("pressure", "sign-dependent transition", 0.9, 2.0, 0.946, 0.5, True,
+                          "", ""), ("pressure_friction",)),
+        Passing(Structure("position", "smooth", 0.5, 2.0, 1.2, 0.4, True, "", ""), ())]
+    assert rival.outdoes(["pressure_friction"], 1.09) == ("", "")
+    assert rival.outdoes(["asymmetry"], 1.09)[0] == "sign-dependent transition in pressure"
+    assert rival.outdoes(["asymmetry", "pressure_friction"], 1.09) == ("", "")
+    assert rival.outdoes(["asymmetry", "viscous"], 1.3)[0] == "sign-dependent transition in pressure"
+
     decided = {"pressure_friction": Candidate("pressure_friction", 310.0, 1, 0.0, True,
                                               heldout_rms_after_N=0.413, why=why,
                                               outdone_by=by)}

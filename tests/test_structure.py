@@ -392,3 +392,34 @@ def test_a_ripple_is_found_without_time_in_one_log_and_relative_to_the_start(log
         assert not tried & {"time", "velocity", "acceleration"}
     if case.startswith("masked"):
         assert "relative to the start" in first.description
+
+
+def test_held_out_log_by_log_a_shape_the_logs_share_passes_and_a_logs_own_level_does_not(
+        logs):
+    """``hold_out="logs"`` (what a library effect is held against in the diagnosis' rounds,
+    ``_rounds.Rival``): a ripple along the stroke that the logs travel alike is learnt from
+    the other logs and predicts the left-out one; a friction level of each log's own
+    predicts nothing of a log it never saw, though block folds within the logs describe
+    it."""
+    from fitstiff.diagnosis.structure import passing_descriptions
+
+    logs_, segs = logs
+    masks = [np.ones(len(log), bool) for log in logs_]
+    together = _at(logs_, (0.35, 0.35, 0.35))
+    ripple = [e + 0.25 * np.sin(2 * np.pi * log.position() / 0.7e-3)
+              for log, e in zip(together, _noise(logs_, 1))]
+    found = passing_descriptions(together, segs, ripple, masks, SIGMA, hold_out="logs")
+    assert found and found[0].structure.variable == "position", found
+    assert found[0].structure.form.startswith("periodic") and found[0].lookalike_of == ()
+    assert all(p.structure.accepted for p in found)
+    assert [p.structure.heldout_rms_after_N for p in found] == sorted(
+        p.structure.heldout_rms_after_N for p in found)
+
+    own = [e + a * seg.direction for a, seg, e in zip((0.5, -0.1, 0.3), segs,
+                                                         _noise(logs_, 3))]
+    by_blocks = passing_descriptions(logs_, segs, own, masks, SIGMA)
+    assert "log" in {p.structure.variable for p in by_blocks}
+    by_logs = passing_descriptions(logs_, segs, own, masks, SIGMA, hold_out="logs")
+    assert "log" not in {p.structure.variable for p in by_logs}, by_logs
+    with pytest.raises(ValueError, match="two logs or more"):
+        passing_descriptions(logs_[:1], segs[:1], own[:1], masks[:1], SIGMA, hold_out="logs")
