@@ -443,3 +443,45 @@ def test_an_effect_one_log_alone_determines_says_which_log(dataset, alone):
             in told[0]
         again = type(d).from_dict(json.loads(json.dumps(d.to_dict())))
         assert again.candidate("stribeck").determined_by == slow
+
+
+def test_merged_records_take_each_rerun_over_the_stored_and_add_none(tmp_path, capsys):
+    """benchmarks/withheld_merge.py: the stored files merge (a later one's records replace
+    an earlier one's), a --rerun file replaces records and adds none, and the scores are of
+    the merged records."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "withheld_merge.py"
+    spec = importlib.util.spec_from_file_location("withheld_merge", path)
+    merge = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(merge)
+
+    results = Path(__file__).resolve().parents[1] / "benchmarks" / "results"
+    kept = {**json.loads((results / "withheld_single_eb901e8.json").read_text())["datasets"],
+            **json.loads((results / "withheld_rest_5bd97f1.json").read_text())["datasets"]}
+
+    def rec(i, accepted):              # a stored record, with what it accepted replaced
+        return dict(kept[i.replace("/7", "/2")], id=i, accepted=accepted)
+
+    stored = {"single/viscous/0": rec("single/viscous/0", ["viscous"]),
+              "ool/ripple/1": rec("ool/ripple/1", ["pressure_friction"])}
+    (tmp_path / "a.json").write_text(json.dumps({"datasets": stored}))
+    rerun = {"ool/ripple/1": rec("ool/ripple/1", []),
+             "ool/ripple/7": rec("ool/ripple/7", ["stribeck"])}
+    (tmp_path / "b.json").write_text(json.dumps({"datasets": rerun}))
+    records = merge.merge([tmp_path / "a.json"], [tmp_path / "b.json"])
+    assert sorted(records) == ["ool/ripple/1", "single/viscous/0"]
+    assert records["ool/ripple/1"]["accepted"] == []
+    assert sorted(merge.merge([tmp_path / "a.json", tmp_path / "b.json"])) == [
+        "ool/ripple/1", "ool/ripple/7", "single/viscous/0"]
+    out = tmp_path / "scores.json"
+    assert merge.main([str(tmp_path / "a.json"), "--rerun", str(tmp_path / "b.json"),
+                       "--json", str(out), "--summary-only"]) == 0
+    capsys.readouterr()
+    scores = json.loads(out.read_text())
+    assert "datasets" not in scores and scores["reruns"] == [str(tmp_path / "b.json")]
+    assert scores["summary"]["ool"]["unexplained"]["k"] == 1
+    assert scores["summary"]["single"]["exact"]["k"] == 1
+    with pytest.raises(SystemExit, match="not a withheld-benchmark record"):
+        merge.merge([tmp_path / "scores.json"])
