@@ -19,6 +19,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from fitstiff._testing.withheld_scoring import score
+from fitstiff.io.output import to_jsonable, write_atomic
 
 
 def merge(paths: Sequence[Path], reruns: Sequence[Path] = ()) -> dict[str, dict]:
@@ -50,13 +51,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     records = merge(args.files, args.rerun)
     summary = score(records)
-    print(json.dumps(summary, indent=1, default=float))
+    print(json.dumps(to_jsonable(summary), indent=1))
     if args.json:
         out = {"files": [str(p) for p in args.files],
                "reruns": [str(p) for p in args.rerun], "summary": summary}
         if not args.summary_only:
             out["datasets"] = records
-        args.json.write_text(json.dumps(out, indent=1, default=float) + "\n")
+        write_atomic(args.json, json.dumps(to_jsonable(out), indent=1) + "\n")
     return 0
 
 

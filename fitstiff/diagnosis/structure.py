@@ -205,7 +205,7 @@ def _describe(logs, segmentations, residuals, masks, noise_N, *,
     held-out prediction off the residual, until none passes, no gap is left or
     ``max_accept`` are accepted."""
     data = _samples(logs, segmentations, residuals, masks, hold_out)
-    if not data.candidates or data.n_blocks < 4 or not data.counted.any():
+    if not _describable(data):
         return _Descriptions([], [])
     designs = [Design(c, data.log_id, data.weight) for c in data.candidates]
     rule = _Rule(noise_N, alpha, min_shrink, library or {})
@@ -213,7 +213,7 @@ def _describe(logs, segmentations, residuals, masks, noise_N, *,
     accepted: list[Described] = []
     last: list[Structure] = []
     for round_ in range(1, max_accept + 1):
-        before = math.sqrt(float(np.sum(data.weight * r**2) / data.weight.sum()))
+        before = _rms(data, r)
         if before <= noise_N:
             why = (f"no gap left: held-out RMS {before:.3g} N is at the noise floor "
                    f"{noise_N:.3g} N")
@@ -231,6 +231,17 @@ def _describe(logs, segmentations, residuals, masks, noise_N, *,
         if not designs:
             break
     return _Descriptions(accepted, last)
+
+
+def _describable(data: _Samples) -> bool:
+    """Whether the samples can be described at all: a candidate description, four blocks or
+    more to test it over, and samples that count."""
+    return bool(data.candidates) and data.n_blocks >= 4 and bool(data.counted.any())
+
+
+def _rms(data: _Samples, r: np.ndarray) -> float:
+    """The weighted RMS of ``r`` over the counted samples (N)."""
+    return math.sqrt(float(np.sum(data.weight * r**2) / data.weight.sum()))
 
 
 def _samples(logs, segmentations, residuals, masks, hold_out: str = "blocks") -> _Samples:
@@ -329,11 +340,8 @@ def passing_descriptions(logs: Sequence[Log], segmentations: Sequence[Segmentati
     arguments). What a library effect is held against
     (:class:`~fitstiff.diagnosis._rounds.Rival`)."""
     data = _samples(logs, segmentations, residuals, masks, hold_out)
-    if not data.candidates or data.n_blocks < 4 or not data.counted.any():
-        return []
     r = data.residual
-    before = math.sqrt(float(np.sum(data.weight * r**2) / data.weight.sum()))
-    if before <= noise_N:
+    if not _describable(data) or (before := _rms(data, r)) <= noise_N:
         return []
     designs = [Design(c, data.log_id, data.weight) for c in data.candidates]
     rule = _Rule(noise_N, alpha, min_shrink, {})
